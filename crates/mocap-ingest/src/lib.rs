@@ -1,0 +1,181 @@
+//! Read CMU motion capture and turn it into the per-frame features of
+//! *Human Motion Generative Model using Variational Recurrent Neural Network*
+//! (Murakami & Ikuzawa).
+//!
+//! The pipeline for one take is: read the file ([`bvh`] or [`asf`]) →
+//! forward kinematics to the 19 kept joints ([`skeleton::JOINT_NAMES`]) →
+//! resample to 30 fps ([`fps`]) → 58 local-frame features ([`features`]).
+//! [`process`] runs it; [`source`] lists and reads whole collections.
+//! Formats, units and the feature layout are documented in `docs/features.md`.
+
+pub mod asf;
+pub mod bvh;
+pub mod error;
+pub mod features;
+pub mod fps;
+pub mod math;
+pub mod skeleton;
+pub mod source;
+
+pub use error::{ErrorKind, IngestError};
+pub use features::{FeatureVec, NUM_FEATURES};
+pub use skeleton::{Pose, SkeletonKind, JOINT_NAMES, NUM_JOINTS};
+
+use asf::{AmcMotion, AsfOptions, AsfSkeleton};
+use bvh::BvhMotion;
+use fps::FrameRateTable;
+use source::{Format, SourceReader, TakeInput};
+
+/// A parsed motion at its native frame rate.
+#[derive(Clone, Debug)]
+pub enum Motion {
+    /// From a BVH file.
+    Bvh(BvhMotion),
+    /// From an AMC file and its ASF.
+    Amc(AmcMotion),
+}
+
+impl Motion {
+    /// The skeleton the file uses.
+    pub fn skeleton(&self) -> SkeletonKind {
+        match self {
+            Motion::Bvh(b) => b.skeleton,
+            Motion::Amc(_) => SkeletonKind::AsfAmc,
+        }
+    }
+
+    /// The frame rate the file states (BVH only; cgspeed files all say 120).
+    pub fn declared_fps(&self) -> Option<f64> {
+        match self {
+            Motion::Bvh(b) => Some(b.declared_fps),
+            Motion::Amc(_) => None,
+        }
+    }
+
+    /// Number of motion frames (a BVH T-pose frame is not counted).
+    pub fn num_frames(&self) -> usize {
+        match self {
+            Motion::Bvh(b) => b.num_frames(),
+            Motion::Amc(a) => a.num_frames(),
+        }
+    }
+
+    /// Global positions of the 19 kept joints at a native-rate frame.
+    pub fn pose(&self, frame: usize) -> Pose {
+        match self {
+            Motion::Bvh(b) => b.pose(frame),
+            Motion::Amc(a) => a.pose(frame),
+        }
+    }
+}
+
+/// Read a BVH file's bytes. `file` names it in errors.
+pub fn read_bvh(file: &str, bytes: &[u8]) -> Result<Motion, IngestError> {
+    BvhMotion::parse(bytes)
+        .map(Motion::Bvh)
+        .map_err(|k| IngestError::new(file, k))
+}
+
+/// Read an AMC file's bytes with its subject's ASF.
+pub fn read_amc(
+    amc_file: &str,
+    amc: &[u8],
+    asf_file: &str,
+    asf: &[u8],
+    options: AsfOptions,
+) -> Result<Motion, IngestError> {
+    let skeleton = AsfSkeleton::parse(asf, options).map_err(|k| IngestError::new(asf_file, k))?;
+    AmcMotion::parse(amc, skeleton)
+        .map(Motion::Amc)
+        .map_err(|k| IngestError::new(amc_file, k))
+}
+
+/// Options of the per-take pipeline.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Options {
+    /// Output frame rate (the paper: 30).
+    pub target_fps: f64,
+    /// Source frame rates by take id.
+    pub frame_rates: FrameRateTable,
+    /// How ASF skeletons are built.
+    pub asf: AsfOptions,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            target_fps: 30.0,
+            frame_rates: FrameRateTable::default(),
+            asf: AsfOptions::default(),
+        }
+    }
+}
+
+/// One take turned into features.
+#[derive(Clone, Debug)]
+pub struct Clip {
+    /// Take id (file stem).
+    pub take_id: String,
+    /// Skeleton of the source file.
+    pub skeleton: SkeletonKind,
+    /// The source frame rate used.
+    pub source_fps: f64,
+    /// Frames in the source file at its native rate.
+    pub native_frames: usize,
+    /// Features at the target rate.
+    pub features: Vec<FeatureVec>,
+}
+
+/// Resample a motion to `options.target_fps` and compute its features.
+pub fn clip_from_motion(
+    file: &str,
+    take_id: &str,
+    motion: &Motion,
+    options: &Options,
+) -> Result<Clip, IngestError> {
+    let err = |k| IngestError::new(file, k);
+    let source_fps = options.frame_rates.resolve(take_id, motion.declared_fps());
+    let idx =
+        fps::resample_indices(motion.num_frames(), source_fps, options.target_fps).map_err(err)?;
+    let poses: Vec<Pose> = idx.iter().map(|&i| motion.pose(i)).collect();
+    let features = features::compute_features(&poses).map_err(err)?;
+    Ok(Clip {
+        take_id: take_id.to_string(),
+        skeleton: motion.skeleton(),
+        source_fps,
+        native_frames: motion.num_frames(),
+        features,
+    })
+}
+
+/// Read one take of a collection and compute its features.
+pub fn process_take(
+    reader: &mut SourceReader,
+    display: impl Fn(&str) -> String,
+    take: &TakeInput,
+    options: &Options,
+) -> Result<Clip, IngestError> {
+    let file = display(&take.motion.name);
+    let bytes = reader
+        .read(&take.motion.name)
+        .map_err(|e| IngestError::new(&file, ErrorKind::Io(e)))?;
+    let motion = match take.format {
+        Format::Bvh => read_bvh(&file, &bytes)?,
+        Format::Amc => {
+            let Some(asf) = &take.asf else {
+                return Err(IngestError::new(
+                    &file,
+                    ErrorKind::MissingAsf {
+                        expected: take.asf_expected.clone(),
+                    },
+                ));
+            };
+            let asf_file = display(&asf.name);
+            let asf_bytes = reader
+                .read(&asf.name)
+                .map_err(|e| IngestError::new(&asf_file, ErrorKind::Io(e)))?;
+            read_amc(&file, &bytes, &asf_file, &asf_bytes, options.asf)?
+        }
+    };
+    clip_from_motion(&file, &take.take_id, &motion, options)
+}

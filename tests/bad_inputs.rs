@@ -1,0 +1,313 @@
+//! A corpus of broken files, made from real CMU files and by hand: each gives
+//! its specific error naming the file, none panics, and good files beside them
+//! still go through.
+
+use integration_tests::{asfamc_zip, bvh_zip, read_entry};
+use mocap_ingest::source::Source;
+use mocap_ingest::{process_take, ErrorKind, IngestError, Options};
+use std::path::Path;
+
+fn good_bvh() -> String {
+    String::from_utf8(read_entry(&bvh_zip(), "cmu-bvh-motionbuilder/02/02_01.bvh")).unwrap()
+}
+fn good_amc() -> String {
+    String::from_utf8(read_entry(
+        &asfamc_zip(),
+        "all_asfamc/subjects/02/02_01.amc",
+    ))
+    .unwrap()
+}
+fn good_asf() -> String {
+    String::from_utf8(read_entry(&asfamc_zip(), "all_asfamc/subjects/02/02.asf")).unwrap()
+}
+
+/// Replace the `n`-th line (1-based) of `text`.
+fn with_line(text: &str, n: usize, f: impl Fn(&str) -> String) -> String {
+    text.lines()
+        .enumerate()
+        .map(|(i, l)| if i + 1 == n { f(l) } else { l.to_string() })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Replace the `k`-th whitespace-separated token of a line.
+fn set_token(line: &str, k: usize, with: &str) -> String {
+    let mut t: Vec<&str> = line.split_whitespace().collect();
+    t[k] = with;
+    t.join(" ")
+}
+
+fn line_of(text: &str, needle: &str) -> usize {
+    text.lines().position(|l| l.contains(needle)).unwrap() + 1
+}
+
+/// Write `files` into a fresh directory, process every take, and return the
+/// result per take id.
+fn run(files: &[(&str, Vec<u8>)]) -> Vec<(String, Result<usize, IngestError>)> {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, bytes) in files {
+        let path = dir.path().join(name);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(path, bytes).unwrap();
+    }
+    let source = Source::open(dir.path()).unwrap();
+    let mut reader = source.reader().unwrap();
+    let opts = Options::default();
+    source
+        .takes()
+        .unwrap()
+        .iter()
+        .map(|t| {
+            let r = process_take(&mut reader, |n| source.display_name(n), t, &opts);
+            (t.take_id.clone(), r.map(|c| c.features.len()))
+        })
+        .collect()
+}
+
+fn expect_err<'a>(
+    results: &'a [(String, Result<usize, IngestError>)],
+    take: &str,
+) -> &'a IngestError {
+    let (_, r) = results.iter().find(|(t, _)| t == take).unwrap();
+    let e = r.as_ref().expect_err(take);
+    let msg = e.to_string();
+    eprintln!("{take}: {msg}");
+    assert!(
+        msg.contains(&format!("{take}.")),
+        "error does not name the file: {msg}"
+    );
+    e
+}
+
+#[test]
+fn broken_bvh_files_each_give_their_error() {
+    let good = good_bvh();
+    let motion_line = line_of(&good, "Frame Time") + 10;
+    let cut = good.len() * 3 / 5;
+    let files = vec![
+        ("01_ok.bvh", good.clone().into_bytes()),
+        ("02_empty.bvh", Vec::new()),
+        (
+            "03_garbage.bvh",
+            (0..4096u32)
+                .map(|i| ((i * 2654435761u32) >> 13) as u8)
+                .collect(),
+        ),
+        ("04_truncated.bvh", good.as_bytes()[..cut].to_vec()),
+        (
+            "05_channels.bvh",
+            with_line(&good, motion_line, |l| {
+                l.rsplit_once(' ').unwrap().0.to_string()
+            })
+            .into_bytes(),
+        ),
+        (
+            "06_nan.bvh",
+            with_line(&good, motion_line, |l| set_token(l, 5, "nan")).into_bytes(),
+        ),
+        (
+            "07_text.bvh",
+            with_line(&good, motion_line, |l| set_token(l, 5, "1.2.3")).into_bytes(),
+        ),
+        (
+            "08_joints.bvh",
+            good.replace("LeftForeArm", "LeftLowerArm").into_bytes(),
+        ),
+        (
+            "09_frames.bvh",
+            good.replace("Frames: 344", "Frames: 99999999999")
+                .into_bytes(),
+        ),
+        ("10_braces.bvh", good.replacen("{", "", 3).into_bytes()),
+        (
+            "11_nomotion.bvh",
+            good.as_bytes()[..good.find("MOTION").unwrap()].to_vec(),
+        ),
+        (
+            "12_declared.bvh",
+            good.replacen(
+                "CHANNELS 3 Zrotation Yrotation Xrotation",
+                "CHANNELS 4 Zrotation Yrotation Xrotation",
+                1,
+            )
+            .into_bytes(),
+        ),
+        (
+            "13_inf.bvh",
+            with_line(&good, motion_line, |l| set_token(l, 7, "inf")).into_bytes(),
+        ),
+        (
+            "14_extra_brace.bvh",
+            good.replacen("}", "}\n}\n}", 1).into_bytes(),
+        ),
+    ];
+    let results = run(&files);
+    assert_eq!(results.len(), files.len());
+    assert_eq!(
+        results[0].1.as_ref().unwrap(),
+        &86,
+        "the good file still goes through"
+    );
+
+    assert!(matches!(
+        expect_err(&results, "02_empty").kind,
+        ErrorKind::Empty
+    ));
+    assert!(matches!(
+        expect_err(&results, "03_garbage").kind,
+        ErrorKind::NotText { .. }
+    ));
+    match &expect_err(&results, "04_truncated").kind {
+        ErrorKind::Truncated {
+            expected: 344,
+            found,
+            line,
+        } => {
+            assert!(*found < 344 && *line > motion_line - 10)
+        }
+        k => panic!("{k}"),
+    }
+    match &expect_err(&results, "05_channels").kind {
+        ErrorKind::ChannelCount {
+            line,
+            expected: 96,
+            found: 95,
+        } => assert_eq!(*line, motion_line),
+        k => panic!("{k}"),
+    }
+    match &expect_err(&results, "06_nan").kind {
+        ErrorKind::NonFinite { frame, what } => {
+            assert_eq!(*frame, motion_line - line_of(&good, "Frame Time") - 1);
+            assert!(what.contains(&format!("line {motion_line}")), "{what}");
+        }
+        k => panic!("{k}"),
+    }
+    match &expect_err(&results, "07_text").kind {
+        ErrorKind::NonNumeric { line, token } => {
+            assert_eq!(*line, motion_line);
+            assert_eq!(token, "1.2.3");
+        }
+        k => panic!("{k}"),
+    }
+    match &expect_err(&results, "08_joints").kind {
+        ErrorKind::UnknownSkeleton { missing, .. } => assert_eq!(missing, &["LeftForeArm"]),
+        k => panic!("{k}"),
+    }
+    assert!(matches!(
+        expect_err(&results, "09_frames").kind,
+        ErrorKind::Truncated {
+            expected: 99999999999,
+            ..
+        }
+    ));
+    expect_err(&results, "10_braces");
+    assert!(matches!(
+        expect_err(&results, "11_nomotion").kind,
+        ErrorKind::Syntax { .. }
+    ));
+    assert!(matches!(
+        expect_err(&results, "12_declared").kind,
+        ErrorKind::Syntax { line: Some(_), .. }
+    ));
+    assert!(matches!(
+        expect_err(&results, "13_inf").kind,
+        ErrorKind::NonFinite { .. }
+    ));
+    expect_err(&results, "14_extra_brace");
+}
+
+#[test]
+fn broken_asf_amc_files_each_give_their_error() {
+    let (amc, asf) = (good_amc(), good_asf());
+    let root2 = line_of(&amc, "root 10.4117");
+    let files = vec![
+        ("02/02.asf", asf.clone().into_bytes()),
+        ("02/02_01.amc", amc.clone().into_bytes()),
+        ("02/02_02.amc", amc.as_bytes()[..amc.len() / 2].to_vec()),
+        (
+            "02/02_03.amc",
+            with_line(&amc, root2, |l| l.rsplit_once(' ').unwrap().0.to_string()).into_bytes(),
+        ),
+        (
+            "02/02_04.amc",
+            amc.replacen("lowerback 7.44596", "lowerback nan", 1)
+                .into_bytes(),
+        ),
+        (
+            "02/02_05.amc",
+            with_line(&amc, root2 + 1, |l| l.replace("lowerback", "lowerbackk")).into_bytes(),
+        ),
+        (
+            "02/02_06.amc",
+            with_line(&amc, root2 - 1, |_| "3".into()).into_bytes(),
+        ),
+        (
+            "02/02_07.amc",
+            with_line(&amc, root2, |l| l.replace("10.4117", "ten")).into_bytes(),
+        ),
+        ("09/09_01.amc", amc.clone().into_bytes()),
+        ("17/17.asf", asf.replace("lfemur", "lthigh").into_bytes()),
+        ("17/17_01.amc", amc.clone().into_bytes()),
+        ("29/29.asf", vec![0u8, 159, 146, 150, 1, 2, 3]),
+        ("29/29_01.amc", amc.clone().into_bytes()),
+    ];
+    let results = run(&files);
+    assert_eq!(results.len(), 10);
+    assert_eq!(
+        results[0].1.as_ref().unwrap(),
+        &86,
+        "the good file still goes through"
+    );
+    assert!(matches!(
+        expect_err(&results, "02_02").kind,
+        ErrorKind::Truncated { .. }
+    ));
+    match &expect_err(&results, "02_03").kind {
+        ErrorKind::ChannelCount {
+            line,
+            expected: 6,
+            found: 5,
+        } => assert_eq!(*line, root2),
+        k => panic!("{k}"),
+    }
+    assert!(matches!(
+        expect_err(&results, "02_04").kind,
+        ErrorKind::NonFinite { frame: 1, .. }
+    ));
+    assert!(matches!(
+        expect_err(&results, "02_05").kind,
+        ErrorKind::Syntax { format: "AMC", .. }
+    ));
+    assert!(matches!(
+        expect_err(&results, "02_06").kind,
+        ErrorKind::Syntax { format: "AMC", .. }
+    ));
+    match &expect_err(&results, "02_07").kind {
+        ErrorKind::NonNumeric { line, token } => {
+            assert_eq!((*line, token.as_str()), (root2, "ten"))
+        }
+        k => panic!("{k}"),
+    }
+    match &expect_err(&results, "09_01").kind {
+        ErrorKind::MissingAsf { expected } => assert!(expected.ends_with("09/09.asf")),
+        k => panic!("{k}"),
+    }
+    // Skeleton errors name the ASF.
+    let (_, r) = results.iter().find(|(t, _)| t == "17_01").unwrap();
+    let e = r.as_ref().unwrap_err();
+    assert!(e.file.ends_with("17.asf"), "{e}");
+    assert!(
+        matches!(&e.kind, ErrorKind::UnknownSkeleton { missing, .. } if missing == &["lfemur"])
+    );
+    let (_, r) = results.iter().find(|(t, _)| t == "29_01").unwrap();
+    assert!(matches!(
+        r.as_ref().unwrap_err().kind,
+        ErrorKind::NotText { .. }
+    ));
+}
+
+#[test]
+fn missing_collection_is_a_clear_error() {
+    let e = Source::open(Path::new("/no/such/cmu")).unwrap_err();
+    assert_eq!(e.to_string(), "/no/such/cmu: no such file or directory");
+}

@@ -1,0 +1,152 @@
+//! Every real CMU file reads; BVH and ASF/AMC of the same take agree.
+
+use integration_tests::{asfamc_zip, bvh_zip};
+use mocap_ingest::skeleton::JOINT_PARENTS;
+use mocap_ingest::source::{Format, Source, TakeInput};
+use mocap_ingest::{features, math, read_amc, read_bvh, Motion, Options, JOINT_NAMES, NUM_JOINTS};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+fn load(source: &Source, take: &TakeInput) -> Motion {
+    let mut r = source.reader().expect("open archive");
+    let file = source.display_name(&take.motion.name);
+    let bytes = r.read(&take.motion.name).expect("read entry");
+    match take.format {
+        Format::Bvh => read_bvh(&file, &bytes),
+        Format::Amc => {
+            let asf = take.asf.as_ref().expect("ASF beside AMC");
+            let asf_bytes = r.read(&asf.name).expect("read ASF");
+            read_amc(&file, &bytes, &asf.name, &asf_bytes, Default::default())
+        }
+    }
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Max over bones of (max length − min length) over all frames.
+fn bone_length_deviation(m: &Motion) -> f64 {
+    let mut lo = [f64::INFINITY; NUM_JOINTS];
+    let mut hi = [f64::NEG_INFINITY; NUM_JOINTS];
+    for f in 0..m.num_frames() {
+        let p = m.pose(f);
+        for (j, parent) in JOINT_PARENTS.iter().enumerate() {
+            assert!(p[j].iter().all(|v| v.is_finite()), "non-finite joint");
+            if let Some(q) = parent {
+                let l = math::norm(math::sub(p[j], p[*q]));
+                lo[j] = lo[j].min(l);
+                hi[j] = hi[j].max(l);
+            }
+        }
+    }
+    (1..NUM_JOINTS).map(|j| hi[j] - lo[j]).fold(0.0, f64::max)
+}
+
+fn check_archive(path: &std::path::Path, format: Format, expect_takes: usize) {
+    let source = Source::open(path).unwrap();
+    let takes: Vec<TakeInput> = source.takes().unwrap();
+    assert_eq!(takes.len(), expect_takes);
+    assert!(takes.iter().all(|t| t.format == format));
+    let results: Vec<(usize, f64)> = takes
+        .par_iter()
+        .map(|t| {
+            let m = load(&source, t);
+            assert!(m.num_frames() > 0);
+            let opts = Options::default();
+            let clip = mocap_ingest::clip_from_motion(&t.take_id, &t.take_id, &m, &opts)
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert!(clip
+                .features
+                .iter()
+                .all(|f| f.iter().all(|v| v.is_finite())));
+            (m.num_frames(), bone_length_deviation(&m))
+        })
+        .collect();
+    let frames: usize = results.iter().map(|r| r.0).sum();
+    let dev = results.iter().map(|r| r.1).fold(0.0, f64::max);
+    eprintln!(
+        "{}: {} takes, {frames} frames, max bone-length deviation {dev:.2e} units",
+        path.display(),
+        takes.len()
+    );
+    assert!(dev < 1e-9, "bone lengths change over time: {dev}");
+}
+
+#[test]
+fn every_bvh_file_reads_with_constant_bone_lengths() {
+    check_archive(&bvh_zip(), Format::Bvh, 139);
+}
+
+#[test]
+fn every_asfamc_file_reads_with_constant_bone_lengths() {
+    check_archive(&asfamc_zip(), Format::Amc, 225);
+}
+
+#[test]
+fn bvh_and_asfamc_of_the_same_take_agree() {
+    let bvh = Source::open(&bvh_zip()).unwrap();
+    let amc = Source::open(&asfamc_zip()).unwrap();
+    let bvh_takes: BTreeMap<String, TakeInput> = bvh
+        .takes()
+        .unwrap()
+        .into_iter()
+        .map(|t| (t.take_id.clone(), t))
+        .collect();
+    let pairs: Vec<(TakeInput, TakeInput)> = amc
+        .takes()
+        .unwrap()
+        .into_iter()
+        .filter_map(|t| bvh_takes.get(&t.take_id).map(|b| (b.clone(), t)))
+        .collect();
+    assert_eq!(pairs.len(), 54, "takes present in both archives");
+
+    let per_take: Vec<([f64; NUM_JOINTS], [f64; 2])> = pairs
+        .par_iter()
+        .map(|(b, a)| {
+            let mb = load(&bvh, b);
+            let ma = load(&amc, a);
+            assert_eq!(mb.num_frames(), ma.num_frames(), "{}", b.take_id);
+            let mut dev = [0.0f64; NUM_JOINTS];
+            for f in 0..mb.num_frames() {
+                let (pb, pa) = (mb.pose(f), ma.pose(f));
+                for j in 0..NUM_JOINTS {
+                    dev[j] = dev[j].max(math::norm(math::sub(pb[j], pa[j])));
+                }
+            }
+            let opts = Options::default();
+            let fb = mocap_ingest::clip_from_motion("bvh", &b.take_id, &mb, &opts).unwrap();
+            let fa = mocap_ingest::clip_from_motion("amc", &a.take_id, &ma, &opts).unwrap();
+            assert_eq!(fb.features.len(), fa.features.len());
+            // [positions and root height, the three root velocities]
+            let mut fdev = [0.0f64; 2];
+            for (x, y) in fb.features.iter().zip(&fa.features) {
+                for (i, (u, v)) in x.iter().zip(y).enumerate() {
+                    let g = usize::from(i >= features::VEL_X);
+                    fdev[g] = fdev[g].max((u - v).abs());
+                }
+            }
+            (dev, fdev)
+        })
+        .collect();
+    let mut dev = [0.0f64; NUM_JOINTS];
+    for (d, _) in &per_take {
+        for j in 0..NUM_JOINTS {
+            dev[j] = dev[j].max(d[j]);
+        }
+    }
+    let fdev_pos = per_take.iter().map(|p| p.1[0]).fold(0.0, f64::max);
+    let fdev_vel = per_take.iter().map(|p| p.1[1]).fold(0.0, f64::max);
+    eprintln!("max |BVH − ASF/AMC| joint position over 54 takes, every frame (units):");
+    for j in 0..NUM_JOINTS {
+        eprintln!("  {:<13} {:.2e}", JOINT_NAMES[j], dev[j]);
+    }
+    eprintln!(
+        "max |feature difference| over 54 takes at 30 fps: local positions {fdev_pos:.2e}, root velocities {fdev_vel:.2e}"
+    );
+    assert!(
+        dev.iter().all(|&d| d < 1e-3),
+        "joint positions differ: {dev:?}"
+    );
+    assert!(
+        fdev_pos < 1e-3 && fdev_vel < 1e-3,
+        "features differ by {fdev_pos}, {fdev_vel}"
+    );
+}
