@@ -1,1 +1,210 @@
-fn main() {}
+//! `cargo xtask <command>`: the project's pipeline stages and benchmarks.
+//!
+//! A thin binary over the library crates: argument parsing, progress and
+//! reports live here; the work lives in the crates.
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use mocap_ingest::source::{Source, TakeInput};
+use mocap_ingest::{process_take, Options};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Parser)]
+#[command(name = "cargo xtask", about = "Motion-capture → VRNN toolchain tasks")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Benchmark reading + forward kinematics + features over CMU collections,
+    /// single-threaded and with all cores.
+    BenchIngest {
+        /// Directories or .zip archives (default: the two samples in ../shared/cmu).
+        #[arg(long = "source")]
+        sources: Vec<PathBuf>,
+        /// Repetitions per configuration (the best is reported).
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+    },
+    /// Read one motion file and print what the pipeline sees.
+    Inspect {
+        /// A .bvh file, or an .amc file with its subject's NN.asf beside it.
+        file: PathBuf,
+        /// Keep the ASF thorax length (the full ASF skeleton).
+        #[arg(long)]
+        full_asf_skeleton: bool,
+    },
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().command {
+        Command::BenchIngest { sources, repeat } => bench_ingest(sources, repeat),
+        Command::Inspect {
+            file,
+            full_asf_skeleton,
+        } => inspect(&file, full_asf_skeleton),
+    }
+}
+
+/// The workspace root (xtask lives one level below it).
+fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."))
+}
+
+/// The shared CMU samples beside the repository.
+fn shared_samples() -> Result<Vec<PathBuf>> {
+    let dir = workspace_root().join("../shared/cmu");
+    let files = ["cmu-bvh-sample.zip", "cmu-asfamc-sample.zip"].map(|f| dir.join(f));
+    if let Some(missing) = files.iter().find(|f| !f.is_file()) {
+        bail!(
+            "no --source given and the CMU samples are missing: expected {} \
+             (pass --source with a directory or .zip of CMU .bvh or .asf/.amc files)",
+            missing.display()
+        );
+    }
+    Ok(files.to_vec())
+}
+
+struct Throughput {
+    files: usize,
+    bytes: u64,
+    native_frames: usize,
+    failed: usize,
+    seconds: f64,
+}
+
+fn run_once(source: &Source, takes: &[TakeInput], threads: usize) -> Result<Throughput> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("building the thread pool")?;
+    let opts = Options::default();
+    let start = Instant::now();
+    let results: Vec<Option<usize>> = pool.install(|| {
+        takes
+            .par_iter()
+            .map_init(
+                || source.reader().ok(),
+                |reader, take| {
+                    let reader = reader.as_mut()?;
+                    process_take(reader, |n| source.display_name(n), take, &opts)
+                        .ok()
+                        .map(|c| c.native_frames)
+                },
+            )
+            .collect()
+    });
+    let seconds = start.elapsed().as_secs_f64();
+    let bytes = takes
+        .iter()
+        .map(|t| t.motion.size + t.asf.as_ref().map_or(0, |a| a.size))
+        .sum();
+    Ok(Throughput {
+        files: takes.len(),
+        bytes,
+        native_frames: results.iter().flatten().sum(),
+        failed: results.iter().filter(|r| r.is_none()).count(),
+        seconds,
+    })
+}
+
+fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
+    let sources = if sources.is_empty() {
+        shared_samples()?
+    } else {
+        sources
+    };
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    println!("read + FK + 58 features, whole collection, best of {repeat} (input = uncompressed motion + skeleton bytes; frames at the native rate)");
+    println!(
+        "{:<28} {:>7} {:>6} {:>9} {:>10} {:>8} {:>9} {:>13}",
+        "source", "threads", "files", "MB", "frames", "seconds", "MB/s", "frames/s"
+    );
+    for path in &sources {
+        let source = Source::open(path)?;
+        let takes = source.takes()?;
+        if takes.is_empty() {
+            bail!("{}: no .bvh or .amc files", path.display());
+        }
+        let mut thread_counts = vec![1];
+        if cores > 1 {
+            thread_counts.push(cores);
+        }
+        for &threads in &thread_counts {
+            let mut best: Option<Throughput> = None;
+            for _ in 0..repeat.max(1) {
+                let t = run_once(&source, &takes, threads)?;
+                if best.as_ref().is_none_or(|b| t.seconds < b.seconds) {
+                    best = Some(t);
+                }
+            }
+            let Some(t) = best else { continue };
+            let name = path.file_name().map_or_else(
+                || path.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            );
+            println!(
+                "{:<28} {:>7} {:>6} {:>9.1} {:>10} {:>8.3} {:>9.1} {:>13.0}",
+                name,
+                threads,
+                t.files,
+                t.bytes as f64 / 1e6,
+                t.native_frames,
+                t.seconds,
+                t.bytes as f64 / 1e6 / t.seconds,
+                t.native_frames as f64 / t.seconds
+            );
+            if t.failed > 0 {
+                println!("  ({} files failed; run `cargo xtask inspect FILE` on them)", t.failed);
+            }
+        }
+    }
+    Ok(())
+}
+
+fn inspect(file: &Path, full_asf_skeleton: bool) -> Result<()> {
+    let dir = file.parent().unwrap_or(Path::new("."));
+    let name = file
+        .file_name()
+        .context("not a file path")?
+        .to_string_lossy()
+        .into_owned();
+    let source = Source::open(dir)?;
+    let take = source
+        .takes()?
+        .into_iter()
+        .find(|t| t.motion.name == name)
+        .with_context(|| format!("{}: not a .bvh or .amc file", file.display()))?;
+    let mut opts = Options::default();
+    opts.asf.full_skeleton = full_asf_skeleton;
+    let mut reader = source.reader()?;
+    let clip = process_take(&mut reader, |n| source.display_name(n), &take, &opts)?;
+    println!("file:          {}", file.display());
+    println!("take:          {}", clip.take_id);
+    println!("skeleton:      {}", clip.skeleton.name());
+    println!(
+        "frames:        {} at {} fps → {} at {} fps",
+        clip.native_frames,
+        clip.source_fps,
+        clip.features.len(),
+        opts.target_fps
+    );
+    let names = mocap_ingest::features::feature_names();
+    println!("{:<16} {:>10} {:>10} {:>10}", "feature", "min", "mean", "max");
+    for (i, n) in names.iter().enumerate() {
+        let col = clip.features.iter().map(|f| f[i]);
+        let (lo, hi) = col.clone().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+        let mean = col.sum::<f64>() / clip.features.len() as f64;
+        println!("{n:<16} {lo:>10.4} {mean:>10.4} {hi:>10.4}");
+    }
+    Ok(())
+}
