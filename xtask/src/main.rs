@@ -162,7 +162,10 @@ fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
                 t.native_frames as f64 / t.seconds
             );
             if t.failed > 0 {
-                println!("  ({} files failed; run `cargo xtask inspect FILE` on them)", t.failed);
+                println!(
+                    "  ({} files failed; run `cargo xtask inspect FILE` on them)",
+                    t.failed
+                );
             }
         }
     }
@@ -197,12 +200,17 @@ fn inspect(file: &Path, full_asf_skeleton: bool) -> Result<()> {
         opts.target_fps
     );
     let names = mocap_ingest::features::feature_names();
-    println!("{:<16} {:>10} {:>10} {:>10}", "feature", "min", "mean", "max");
+    println!(
+        "{:<16} {:>10} {:>10} {:>10}",
+        "feature", "min", "mean", "max"
+    );
     for (i, n) in names.iter().enumerate() {
         let col = clip.features.iter().map(|f| f[i]);
-        let (lo, hi) = col.clone().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(v), b.max(v))
-        });
+        let (lo, hi) = col
+            .clone()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            });
         let mean = col.sum::<f64>() / clip.features.len() as f64;
         println!("{n:<16} {lo:>10.4} {mean:>10.4} {hi:>10.4}");
     }
