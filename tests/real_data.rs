@@ -150,3 +150,84 @@ fn bvh_and_asfamc_of_the_same_take_agree() {
         "features differ by {fdev_pos}, {fdev_vel}"
     );
 }
+
+/// Rename the `ROOT`/`JOINT` names of a BVH text by `map`.
+fn rename_joints(text: &str, map: &[(&str, &str)]) -> String {
+    text.lines()
+        .map(|l| {
+            let t = l.trim_start();
+            for kw in ["JOINT ", "ROOT "] {
+                if let Some(name) = t.strip_prefix(kw) {
+                    if let Some((_, to)) = map.iter().find(|(from, _)| *from == name.trim()) {
+                        return format!("{}{kw}{to}", &l[..l.len() - t.len()]);
+                    }
+                }
+            }
+            l.to_string()
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+#[test]
+fn other_bvh_releases_are_recognised_by_joint_names() {
+    let bytes = integration_tests::read_entry(&bvh_zip(), "cmu-bvh-motionbuilder/02/02_01.bvh");
+    let text = String::from_utf8(bytes).unwrap();
+    let mb = read_bvh("mb", text.as_bytes()).unwrap();
+    assert_eq!(mb.skeleton(), mocap_ingest::SkeletonKind::Motionbuilder2010);
+
+    // 2008 release: LFingers/RFingers instead of Left/RightHandIndex1; T-pose dropped too.
+    let mb08 = rename_joints(
+        &text,
+        &[
+            ("LeftHandIndex1", "LFingers"),
+            ("RightHandIndex1", "RFingers"),
+        ],
+    );
+    let m08 = read_bvh("mb08", mb08.as_bytes()).unwrap();
+    assert_eq!(
+        m08.skeleton(),
+        mocap_ingest::SkeletonKind::Motionbuilder2008
+    );
+    assert_eq!(m08.num_frames(), mb.num_frames());
+    assert_eq!(m08.pose(7), mb.pose(7));
+
+    // 3dsMax names (same geometry here); 3dsMax files have no T-pose frame,
+    // so this file's frame k+1 is the Motionbuilder reading's frame k.
+    let max = rename_joints(
+        &text,
+        &[
+            ("LeftUpLeg", "LeftHip"),
+            ("LeftLeg", "LeftKnee"),
+            ("LeftFoot", "LeftAnkle"),
+            ("LeftToeBase", "LeftToe"),
+            ("RightUpLeg", "RightHip"),
+            ("RightLeg", "RightKnee"),
+            ("RightFoot", "RightAnkle"),
+            ("RightToeBase", "RightToe"),
+            ("LowerBack", "lowerback"),
+            ("Spine", "Chest"),
+            ("Spine1", "Chest2"),
+            ("Neck", "lowerneck"),
+            ("Neck1", "Neck"),
+            ("LeftShoulder", "LeftCollar"),
+            ("LeftArm", "LeftShoulder"),
+            ("LeftForeArm", "LeftElbow"),
+            ("LeftHand", "LeftWrist"),
+            ("LeftFingerBase", "lhand"),
+            ("LeftHandIndex1", "LFingers"),
+            ("RightShoulder", "RightCollar"),
+            ("RightArm", "RightShoulder"),
+            ("RightForeArm", "RightElbow"),
+            ("RightHand", "RightWrist"),
+            ("RightFingerBase", "rhand"),
+            ("RightHandIndex1", "RFingers"),
+        ],
+    );
+    let m3 = read_bvh("max", max.as_bytes()).unwrap();
+    assert_eq!(m3.skeleton(), mocap_ingest::SkeletonKind::Max3ds);
+    assert_eq!(m3.num_frames(), mb.num_frames() + 1);
+    for k in [0, 100, mb.num_frames() - 1] {
+        assert_eq!(m3.pose(k + 1), mb.pose(k));
+    }
+}

@@ -16,6 +16,7 @@
 use crate::error::{check_text, snippet, ErrorKind};
 use crate::math::{add, scale, Axis, Mat3, Vec3};
 use crate::skeleton::{Pose, ASF_BONES, NUM_JOINTS};
+use crate::text::parse_decimal;
 
 /// How to build the skeleton from an ASF.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -80,13 +81,13 @@ fn amc_err(line: usize, message: impl Into<String>) -> ErrorKind {
 }
 
 fn number(line: usize, tok: &str) -> Result<f64, ErrorKind> {
-    match tok.parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
-        Ok(_) => Err(ErrorKind::NonFinite {
+    match parse_decimal(tok.as_bytes()) {
+        Some(v) if v.is_finite() => Ok(v),
+        Some(_) => Err(ErrorKind::NonFinite {
             frame: 0,
             what: format!("value {tok:?} at line {line}"),
         }),
-        Err(_) => Err(ErrorKind::NonNumeric {
+        None => Err(ErrorKind::NonNumeric {
             line,
             token: snippet(tok.as_bytes()),
         }),

@@ -1,10 +1,12 @@
-//! BVH reading through `bvh_anim`, with the validation `bvh_anim` lacks
-//! (channel counts per line, truncation, frame-count sanity, NaN) and with its
-//! panics contained.
+//! BVH reading. `bvh_anim` parses the hierarchy (its panics contained); the
+//! motion table is parsed here in one validating pass, because `bvh_anim`
+//! does not check the number of values per line, trusts `Frames:` for memory,
+//! reads values as `f32` and gives no line numbers for bad values.
 
 use crate::error::{check_text, snippet, ErrorKind};
 use crate::math::{add, Axis, Mat3, Vec3};
 use crate::skeleton::{bvh_names, recognise_bvh, Pose, SkeletonKind, NUM_JOINTS};
+use crate::text::{parse_decimal, tokens};
 use bvh_anim::ChannelType;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
@@ -32,7 +34,7 @@ pub struct BvhMotion {
     needed: Vec<usize>,
     /// For each kept joint, its index in `joints`.
     kept: [usize; NUM_JOINTS],
-    values: Vec<f32>,
+    values: Vec<f64>,
     num_channels: usize,
     first_frame: usize,
     num_frames: usize,
@@ -89,7 +91,7 @@ impl BvhMotion {
 /// joints in `order` (parents first; others are left at the origin).
 /// `pos(j) = pos(parent) + R(parent) · (offset + translation)`,
 /// `R(j) = R(parent) · R(c1) · R(c2) · R(c3)` for rotation channels listed `c1 c2 c3`.
-fn forward_kinematics(joints: &[Joint], order: &[usize], v: &[f32]) -> Vec<Vec3> {
+fn forward_kinematics(joints: &[Joint], order: &[usize], v: &[f64]) -> Vec<Vec3> {
     let n = joints.len();
     let mut rot = vec![Mat3::IDENTITY; n];
     let mut pos = vec![[0.0; 3]; n];
@@ -98,12 +100,12 @@ fn forward_kinematics(joints: &[Joint], order: &[usize], v: &[f32]) -> Vec<Vec3>
         let mut local = joint.offset;
         for (axis, idx) in joint.position.iter().enumerate() {
             if let Some(i) = idx {
-                local[axis] += v[*i] as f64;
+                local[axis] += v[*i];
             }
         }
         let mut r = Mat3::IDENTITY;
         for &(axis, i) in &joint.rotation {
-            r = r.mul(&Mat3::rotation(axis, (v[i] as f64).to_radians()));
+            r = r.mul(&Mat3::rotation(axis, v[i].to_radians()));
         }
         match joint.parent {
             Some(p) => {
@@ -123,7 +125,7 @@ fn forward_kinematics(joints: &[Joint], order: &[usize], v: &[f32]) -> Vec<Vec3>
 struct Tree {
     joints: Vec<Joint>,
     names: Vec<String>,
-    values: Vec<f32>,
+    values: Vec<f64>,
     channels: usize,
     frames: usize,
     /// Seconds per frame.
@@ -133,14 +135,25 @@ struct Tree {
 impl Tree {
     fn parse(bytes: &[u8]) -> Result<Tree, ErrorKind> {
         check_text(bytes)?;
-        let layout = prescan(bytes)?;
-        let bvh = match catch_unwind(AssertUnwindSafe(|| bvh_anim::from_bytes(bytes))) {
+        let (header_end, motion) = split_motion(bytes)?;
+        let declared_channels = check_channel_lists(&bytes[..header_end])?;
+        // bvh_anim reads the hierarchy; the motion table is ours (below).
+        let mut header = bytes[..header_end].to_vec();
+        header.extend_from_slice(b"\nMOTION\nFrames: 0\nFrame Time: 1\n");
+        let bvh = match catch_unwind(AssertUnwindSafe(|| bvh_anim::from_bytes(&header))) {
             Ok(Ok(bvh)) => bvh,
-            Ok(Err(e)) => return Err(explain_parse_failure(bytes, &e.to_string())),
+            Ok(Err(e)) => {
+                return Err(ErrorKind::Syntax {
+                    format: "BVH",
+                    line: None,
+                    message: format!("in HIERARCHY: {e}"),
+                })
+            }
             Err(payload) => return Err(ErrorKind::Panic(panic_message(payload))),
         };
         let mut joints = Vec::new();
         let mut names = Vec::new();
+        let mut channels = 0;
         for j in bvh.joints() {
             let data = j.data();
             let o = data.offset();
@@ -148,6 +161,7 @@ impl Tree {
             let mut rotation = Vec::new();
             for c in data.channels() {
                 let i = c.motion_index();
+                channels = channels.max(i + 1);
                 match c.channel_type() {
                     ChannelType::PositionX => position[0] = Some(i),
                     ChannelType::PositionY => position[1] = Some(i),
@@ -165,47 +179,25 @@ impl Tree {
             });
             names.push(String::from_utf8_lossy(data.name().as_ref()).into_owned());
         }
-        let (channels, frames) = (layout.channels, layout.frames);
-        let values: Vec<f32> = bvh
-            .frames()
-            .flat_map(|f| f.as_slice().iter().copied())
-            .collect();
-        if values.len() != frames * channels {
+        if channels != declared_channels {
             return Err(ErrorKind::Syntax {
                 format: "BVH",
                 line: None,
                 message: format!(
-                    "{} motion values for {frames} frames of {channels} channels",
-                    values.len()
+                    "hierarchy declares {declared_channels} channels but the parser found {channels}"
                 ),
             });
         }
-        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
-            let (frame, ch) = (i / channels, i % channels);
-            return Err(ErrorKind::NonFinite {
-                frame,
-                what: format!(
-                    "channel {ch} ({}) at line {}",
-                    channel_owner(&joints, &names, ch),
-                    layout.first_data_line + frame
-                ),
-            });
-        }
-        let frame_time = bvh.frame_time().as_secs_f64();
-        if !(frame_time > 0.0 && frame_time.is_finite()) {
-            return Err(ErrorKind::Syntax {
-                format: "BVH",
-                line: None,
-                message: format!("invalid Frame Time {frame_time}"),
-            });
-        }
+        let table = parse_motion(bytes, motion, channels, |ch| {
+            channel_owner(&joints, &names, ch)
+        })?;
         Ok(Tree {
             joints,
             names,
-            values,
+            values: table.values,
             channels,
-            frames,
-            frame_time,
+            frames: table.frames,
+            frame_time: table.frame_time,
         })
     }
 }
@@ -224,11 +216,7 @@ fn ancestors_closure(joints: &[Joint], kept: &[usize]) -> Result<Vec<usize>, Err
             j = joints[i].parent;
             steps += 1;
             if steps > joints.len() {
-                return Err(ErrorKind::Syntax {
-                    format: "BVH",
-                    line: None,
-                    message: "cyclic joint hierarchy".into(),
-                });
+                return Err(syntax(None, "cyclic joint hierarchy".into()));
             }
         }
     }
@@ -238,11 +226,10 @@ fn ancestors_closure(joints: &[Joint], kept: &[usize]) -> Result<Vec<usize>, Err
         .iter()
         .any(|&i| joints[i].parent.is_some_and(|p| p >= i))
     {
-        return Err(ErrorKind::Syntax {
-            format: "BVH",
-            line: None,
-            message: "joint hierarchy is not in depth-first order".into(),
-        });
+        return Err(syntax(
+            None,
+            "joint hierarchy is not in depth-first order".into(),
+        ));
     }
     Ok(order)
 }
@@ -266,68 +253,82 @@ fn panic_message(payload: Box<dyn std::any::Any + Send>) -> String {
     }
 }
 
-/// What a cheap scan of the text says about the motion section.
-struct Layout {
-    channels: usize,
-    frames: usize,
-    first_data_line: usize,
-}
-
-/// Validate the structure `bvh_anim` trusts blindly: the declared channel
-/// count, the frame count (so a huge `Frames:` cannot exhaust memory), and the
-/// number of values on every motion line. Line numbers are 1-based.
-fn prescan(bytes: &[u8]) -> Result<Layout, ErrorKind> {
-    let syntax = |line: Option<usize>, message: String| ErrorKind::Syntax {
+fn syntax(line: Option<usize>, message: String) -> ErrorKind {
+    ErrorKind::Syntax {
         format: "BVH",
         line,
         message,
-    };
+    }
+}
+
+/// Where the `MOTION` line starts, and its 1-based line number.
+fn split_motion(bytes: &[u8]) -> Result<(usize, usize), ErrorKind> {
+    let mut start = 0;
+    for (line, l) in (1..).zip(bytes.split(|&b| b == b'\n')) {
+        if l.trim_ascii() == b"MOTION" {
+            return Ok((start, line));
+        }
+        start += l.len() + 1;
+    }
+    Err(syntax(None, "no MOTION section".into()))
+}
+
+/// Check every `CHANNELS n …` line lists `n` channels; return their sum.
+fn check_channel_lists(header: &[u8]) -> Result<usize, ErrorKind> {
+    let mut total = 0;
+    for (i, line) in header.split(|&b| b == b'\n').enumerate() {
+        let mut tok = tokens(line);
+        if tok.next() != Some(b"CHANNELS") {
+            continue;
+        }
+        let count = tok.next().unwrap_or(b"");
+        let c: usize = std::str::from_utf8(count)
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| ErrorKind::NonNumeric {
+                line: i + 1,
+                token: snippet(count),
+            })?;
+        let listed = tok.count();
+        if listed != c {
+            return Err(syntax(
+                Some(i + 1),
+                format!("CHANNELS declares {c} channels but lists {listed}"),
+            ));
+        }
+        total += c;
+    }
+    Ok(total)
+}
+
+struct MotionTable {
+    values: Vec<f64>,
+    frames: usize,
+    frame_time: f64,
+}
+
+/// Parse the motion section starting at 1-based line `motion_line`
+/// (`MOTION`, `Frames: N`, `Frame Time: S`, then N lines of `channels` values),
+/// checking every line.
+fn parse_motion(
+    bytes: &[u8],
+    motion_line: usize,
+    channels: usize,
+    owner: impl Fn(usize) -> String,
+) -> Result<MotionTable, ErrorKind> {
     let mut lines = bytes
         .split(|&b| b == b'\n')
         .enumerate()
-        .map(|(i, l)| (i + 1, l));
-    let mut channels = 0usize;
-    let mut saw_motion = false;
-    for (n, line) in lines.by_ref() {
-        let mut tok = tokens(line);
-        match tok.next() {
-            Some(b"CHANNELS") => {
-                let count = tok.next().unwrap_or(b"");
-                let c: usize = std::str::from_utf8(count)
-                    .ok()
-                    .and_then(|s| s.parse().ok())
-                    .ok_or_else(|| ErrorKind::NonNumeric {
-                        line: n,
-                        token: snippet(count),
-                    })?;
-                let listed = tok.count();
-                if listed != c {
-                    return Err(syntax(
-                        Some(n),
-                        format!("CHANNELS declares {c} channels but lists {listed}"),
-                    ));
-                }
-                channels += c;
-            }
-            Some(b"MOTION") => {
-                saw_motion = true;
-                break;
-            }
-            _ => {}
-        }
-    }
-    if !saw_motion {
-        return Err(syntax(None, "no MOTION section".into()));
-    }
-    let mut header = lines.by_ref().filter(|(_, l)| !l.trim_ascii().is_empty());
-    let (n, frames_line) = header
+        .skip(motion_line)
+        .map(|(i, l)| (i + 1, l))
+        .filter(|(_, l)| !l.trim_ascii().is_empty());
+    let (n, frames_line) = lines
         .next()
         .ok_or_else(|| syntax(None, "missing `Frames:` line after MOTION".into()))?;
     let frames_text = frames_line.trim_ascii();
     let frames: usize = frames_text
         .strip_prefix(b"Frames:")
-        .map(|t| t.trim_ascii())
-        .and_then(|t| std::str::from_utf8(t).ok())
+        .and_then(|t| std::str::from_utf8(t.trim_ascii()).ok())
         .and_then(|s| s.parse().ok())
         .ok_or_else(|| {
             syntax(
@@ -335,25 +336,42 @@ fn prescan(bytes: &[u8]) -> Result<Layout, ErrorKind> {
                 format!("expected `Frames: N`, found {:?}", snippet(frames_text)),
             )
         })?;
-    let (n, ft_line) = header
+    let (n, ft_line) = lines
         .next()
         .ok_or_else(|| syntax(None, "missing `Frame Time:` line".into()))?;
-    if !ft_line.trim_ascii().starts_with(b"Frame Time:") {
-        return Err(syntax(Some(n), "expected `Frame Time: SECONDS`".into()));
-    }
-    let first_data_line = n + 1;
+    let frame_time = ft_line
+        .trim_ascii()
+        .strip_prefix(b"Frame Time:")
+        .and_then(|t| std::str::from_utf8(t.trim_ascii()).ok())
+        .and_then(|s| s.parse::<f64>().ok())
+        .filter(|t| t.is_finite() && *t > 0.0)
+        .ok_or_else(|| syntax(Some(n), "expected `Frame Time: SECONDS` (positive)".into()))?;
+
+    // Never trust `Frames:` for memory: each value takes at least two bytes.
+    let mut values = Vec::with_capacity((frames * channels).min(bytes.len() / 2));
     let mut found = 0usize;
     let mut last_line = n;
-    for (n, line) in lines {
+    while let Some((n, line)) = lines.next() {
         last_line = n;
-        let count = tokens(line).count();
-        if count == 0 {
-            continue;
+        let before = values.len();
+        for t in tokens(line) {
+            let v = parse_decimal(t).ok_or_else(|| ErrorKind::NonNumeric {
+                line: n,
+                token: snippet(t),
+            })?;
+            if !v.is_finite() {
+                let ch = values.len() - before;
+                return Err(ErrorKind::NonFinite {
+                    frame: found,
+                    what: format!("channel {ch} ({}) at line {n}", owner(ch)),
+                });
+            }
+            values.push(v);
         }
+        let count = values.len() - before;
         if count != channels {
             // A short final line is a truncated file, not a layout error.
-            let rest = &bytes[(line.as_ptr() as usize - bytes.as_ptr() as usize) + line.len()..];
-            if count < channels && rest.iter().all(u8::is_ascii_whitespace) {
+            if count < channels && lines.next().is_none() {
                 return Err(ErrorKind::Truncated {
                     expected: frames,
                     found,
@@ -367,6 +385,12 @@ fn prescan(bytes: &[u8]) -> Result<Layout, ErrorKind> {
             });
         }
         found += 1;
+        if found > frames {
+            return Err(syntax(
+                Some(n),
+                format!("`Frames: {frames}` but more frames follow"),
+            ));
+        }
     }
     if found < frames {
         return Err(ErrorKind::Truncated {
@@ -375,61 +399,11 @@ fn prescan(bytes: &[u8]) -> Result<Layout, ErrorKind> {
             line: last_line,
         });
     }
-    if found > frames {
-        return Err(syntax(
-            None,
-            format!("`Frames: {frames}` but the file holds {found} frames"),
-        ));
-    }
-    Ok(Layout {
-        channels,
+    Ok(MotionTable {
+        values,
         frames,
-        first_data_line,
+        frame_time,
     })
-}
-
-/// Whitespace-separated tokens of a line.
-fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
-    line.split(|b| b.is_ascii_whitespace())
-        .filter(|t| !t.is_empty())
-}
-
-/// After `bvh_anim` rejected a file that passed [`prescan`], find the first
-/// motion value that is not a finite number, so the error can name its line.
-fn explain_parse_failure(bytes: &[u8], parser_message: &str) -> ErrorKind {
-    let motion = bytes
-        .split(|&b| b == b'\n')
-        .position(|l| l.trim_ascii() == b"MOTION");
-    if let Some(m) = motion {
-        // Data starts three lines after MOTION (Frames:, Frame Time:).
-        for (i, line) in bytes.split(|&b| b == b'\n').enumerate().skip(m + 3) {
-            for t in tokens(line) {
-                let parsed = std::str::from_utf8(t)
-                    .ok()
-                    .and_then(|s| s.parse::<f32>().ok());
-                match parsed {
-                    Some(v) if v.is_finite() => {}
-                    Some(_) => {
-                        return ErrorKind::NonFinite {
-                            frame: i - m - 3,
-                            what: format!("value {:?} at line {}", snippet(t), i + 1),
-                        }
-                    }
-                    None => {
-                        return ErrorKind::NonNumeric {
-                            line: i + 1,
-                            token: snippet(t),
-                        }
-                    }
-                }
-            }
-        }
-    }
-    ErrorKind::Syntax {
-        format: "BVH",
-        line: None,
-        message: parser_message.to_string(),
-    }
 }
 
 #[cfg(test)]

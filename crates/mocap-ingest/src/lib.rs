@@ -16,6 +16,7 @@ pub mod fps;
 pub mod math;
 pub mod skeleton;
 pub mod source;
+mod text;
 
 pub use error::{ErrorKind, IngestError};
 pub use features::{FeatureVec, NUM_FEATURES};
