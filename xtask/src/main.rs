@@ -3,6 +3,9 @@
 //! A thin binary over the library crates: argument parsing, progress and
 //! reports live here; the work lives in the crates.
 
+mod dataset;
+mod fetch;
+
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use mocap_ingest::source::{Source, TakeInput};
@@ -20,6 +23,19 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Build the training dataset: CMU files → Parquet frames, windows,
+    /// split, normalisation statistics and manifest.
+    Dataset(dataset::DatasetArgs),
+    /// Benchmark `dataset` end to end on the CMU samples, 1 thread and all
+    /// cores, each in a fresh process (reports peak RSS).
+    BenchDataset {
+        /// Directories, .zip archives (default: the two samples in ../shared/cmu, each alone).
+        #[arg(long = "source")]
+        sources: Vec<PathBuf>,
+        /// Repetitions per configuration (the best is reported).
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+    },
     /// Benchmark reading + forward kinematics + features over CMU collections,
     /// single-threaded and with all cores.
     BenchIngest {
@@ -42,6 +58,8 @@ enum Command {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
+        Command::Dataset(args) => dataset::run(args),
+        Command::BenchDataset { sources, repeat } => dataset::bench(sources, repeat),
         Command::BenchIngest { sources, repeat } => bench_ingest(sources, repeat),
         Command::Inspect {
             file,
@@ -51,7 +69,7 @@ fn main() -> Result<()> {
 }
 
 /// The workspace root (xtask lives one level below it).
-fn workspace_root() -> PathBuf {
+pub(crate) fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()
         .map(Path::to_path_buf)
@@ -59,7 +77,7 @@ fn workspace_root() -> PathBuf {
 }
 
 /// The shared CMU samples beside the repository.
-fn shared_samples() -> Result<Vec<PathBuf>> {
+pub(crate) fn shared_samples() -> Result<Vec<PathBuf>> {
     let dir = workspace_root().join("../shared/cmu");
     let files = ["cmu-bvh-sample.zip", "cmu-asfamc-sample.zip"].map(|f| dir.join(f));
     if let Some(missing) = files.iter().find(|f| !f.is_file()) {

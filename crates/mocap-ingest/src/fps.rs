@@ -58,6 +58,11 @@ impl FrameRateTable {
         self.rates.get(take).copied()
     }
 
+    /// All entries (take id, fps), in no particular order.
+    pub fn entries(&self) -> impl Iterator<Item = (&str, f64)> {
+        self.rates.iter().map(|(k, v)| (k.as_str(), *v))
+    }
+
     /// Number of entries.
     pub fn len(&self) -> usize {
         self.rates.len()

@@ -10,6 +10,7 @@
 
 pub mod asf;
 pub mod bvh;
+pub mod dataset;
 pub mod error;
 pub mod features;
 pub mod fps;

@@ -1,0 +1,930 @@
+//! A whole collection → the training dataset (see `docs/dataset.md`):
+//! `frames.parquet`, `takes.parquet`, `windows.parquet`, `stats.json`,
+//! `skipped.json` and `manifest.json`, written atomically into one directory.
+//!
+//! Determinism: takes are processed in parallel in fixed-size chunks, but
+//! results are consumed in take order, so the bytes written never depend on
+//! the thread count. The split of a take (or subject) is a hash of the seed
+//! and its id, so adding a take never moves another.
+
+use crate::features::{feature_names, NUM_FEATURES};
+use crate::source::{subject_of, Format, Source, TakeInput};
+use crate::{clip_from_motion, read_amc, read_bvh, Clip, IngestError, Options};
+use arrow_array::{ArrayRef, Float32Array, RecordBatch, StringArray, UInt32Array};
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
+use parquet::arrow::ArrowWriter;
+use parquet::basic::Compression;
+use parquet::file::properties::WriterProperties;
+use rayon::prelude::*;
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Takes processed per parallel chunk. Fixed, so output never depends on the
+/// number of threads; small, so memory holds a few files at a time.
+const CHUNK: usize = 16;
+
+/// Version of the dataset layout written here.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// The three splits, in this order everywhere.
+pub const SPLITS: [&str; 3] = ["train", "val", "test"];
+
+/// What a split is decided by.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SplitBy {
+    /// Each take independently.
+    Take,
+    /// All takes of a subject together.
+    Subject,
+}
+
+/// Options of a dataset build (the paper's values by default).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetOptions {
+    /// Per-take pipeline options (target fps, frame rates, ASF skeleton).
+    pub ingest: Options,
+    /// Window length in frames (paper: 128).
+    pub window: usize,
+    /// Window stride in frames (paper: 64).
+    pub stride: usize,
+    /// Train/val/test fractions (sum 1).
+    pub fractions: [f64; 3],
+    /// Seed of the split.
+    pub seed: u64,
+    /// Split by take or by subject.
+    pub split_by: SplitBy,
+    /// Lower bound applied to every feature's standard deviation.
+    pub std_floor: f64,
+}
+
+impl Default for DatasetOptions {
+    fn default() -> Self {
+        DatasetOptions {
+            ingest: Options::default(),
+            window: 128,
+            stride: 64,
+            fractions: [0.8, 0.1, 0.1],
+            seed: 0,
+            split_by: SplitBy::Take,
+            std_floor: 1e-3,
+        }
+    }
+}
+
+/// A failure that stops the whole build (per-file problems never do).
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// Invalid options.
+    #[error("invalid options: {0}")]
+    Options(String),
+    /// A collection could not be listed.
+    #[error(transparent)]
+    Source(#[from] crate::source::SourceError),
+    /// Writing the output failed.
+    #[error("{path}: {message}")]
+    Write {
+        /// The file or directory.
+        path: PathBuf,
+        /// What failed.
+        message: String,
+    },
+    /// Nothing usable came out.
+    #[error("empty dataset: none of the {files} motion files gave any frames (see the skipped files above)")]
+    Empty {
+        /// Motion files seen.
+        files: usize,
+    },
+}
+
+/// A file that did not make it into the dataset.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Skipped {
+    /// The file.
+    pub file: String,
+    /// Short reason code (`truncated`, `missing_asf`, `duplicate_take`, …).
+    pub code: String,
+    /// The full message.
+    pub message: String,
+}
+
+/// What a build did.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct BuildSummary {
+    /// Motion files found.
+    pub files: usize,
+    /// Takes written.
+    pub takes: usize,
+    /// Files skipped, with reasons.
+    pub skipped: Vec<Skipped>,
+    /// Input frames at the native rate, over the takes written.
+    pub native_frames: usize,
+    /// Frames written (target rate).
+    pub frames: usize,
+    /// Takes shorter than one window (written, but they give no windows).
+    pub short_takes: usize,
+    /// Takes per split.
+    pub takes_per_split: [usize; 3],
+    /// Windows per split.
+    pub windows_per_split: [usize; 3],
+    /// Bytes of input read (motion and skeleton files).
+    pub input_bytes: u64,
+}
+
+#[derive(Serialize)]
+struct InputFile {
+    path: String,
+    size: u64,
+    sha256: String,
+}
+
+#[derive(Serialize)]
+struct OutputFile {
+    path: String,
+    size: u64,
+    sha256: String,
+}
+
+/// Per-feature statistics of the train split.
+#[derive(Clone, Debug, Serialize, serde::Deserialize, PartialEq)]
+pub struct Stats {
+    /// Feature names, in column order.
+    pub features: Vec<String>,
+    /// Mean of each feature over the train windows' frames.
+    pub mean: Vec<f64>,
+    /// Standard deviation after the floor (what to divide by).
+    pub std: Vec<f64>,
+    /// Standard deviation before the floor.
+    pub std_raw: Vec<f64>,
+    /// The floor applied to `std`.
+    pub std_floor: f64,
+    /// Features whose std was raised to the floor.
+    pub floored: Vec<String>,
+    /// Frames counted (with multiplicity: a frame in two windows counts twice).
+    pub count: u64,
+}
+
+/// Split of a key (take or subject id): a hash of the seed and the key, so it
+/// never depends on the other keys.
+pub fn split_of(key: &str, seed: u64, fractions: [f64; 3]) -> usize {
+    let mut h = Sha256::new();
+    h.update(seed.to_le_bytes());
+    h.update(key.as_bytes());
+    let d = h.finalize();
+    let mut b = [0u8; 8];
+    b.copy_from_slice(&d[..8]);
+    let u = (u64::from_le_bytes(b) >> 11) as f64 / (1u64 << 53) as f64;
+    if u < fractions[0] {
+        0
+    } else if u < fractions[0] + fractions[1] {
+        1
+    } else {
+        2
+    }
+}
+
+/// Start frames of the windows of a take with `frames` frames.
+pub fn window_starts(frames: usize, window: usize, stride: usize) -> Vec<usize> {
+    if frames < window {
+        return Vec::new();
+    }
+    (0..=frames - window).step_by(stride).collect()
+}
+
+/// Hex SHA-256 of bytes.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// One source's take, with where it comes from.
+struct Job<'a> {
+    source: &'a Source,
+    /// Index of `source` among the build's sources (selects the reader).
+    source_index: usize,
+    take: TakeInput,
+}
+
+struct Done {
+    result: Result<Clip, IngestError>,
+    display: String,
+    format: Format,
+    inputs: Vec<InputFile>,
+}
+
+/// Open readers of one worker, one per source (opened on first use).
+type Readers = Vec<Option<crate::source::SourceReader>>;
+
+fn run_job(job: &Job, readers: &mut Readers, opts: &Options) -> Done {
+    let display = job.source.display_name(&job.take.motion.name);
+    let mut inputs = Vec::new();
+    let reader = &mut readers[job.source_index];
+    let result = (|| {
+        let reader = match reader {
+            Some(r) => r,
+            None => {
+                *reader = Some(job.source.reader().map_err(|e| {
+                    IngestError::new(
+                        &display,
+                        crate::ErrorKind::Io(std::io::Error::other(e.to_string())),
+                    )
+                })?);
+                reader.as_mut().ok_or_else(|| {
+                    IngestError::new(
+                        &display,
+                        crate::ErrorKind::Io(std::io::Error::other("no reader")),
+                    )
+                })?
+            }
+        };
+        let mut read = |name: &str| {
+            let shown = job.source.display_name(name);
+            let bytes = reader
+                .read(name)
+                .map_err(|e| IngestError::new(&shown, crate::ErrorKind::Io(e)))?;
+            inputs.push(InputFile {
+                path: shown,
+                size: bytes.len() as u64,
+                sha256: sha256_hex(&bytes),
+            });
+            Ok::<_, IngestError>(bytes)
+        };
+        let bytes = read(&job.take.motion.name)?;
+        let motion = match job.take.format {
+            Format::Bvh => read_bvh(&display, &bytes)?,
+            Format::Amc => {
+                let Some(asf) = &job.take.asf else {
+                    return Err(IngestError::new(
+                        &display,
+                        crate::ErrorKind::MissingAsf {
+                            expected: job.take.asf_expected.clone(),
+                        },
+                    ));
+                };
+                let asf_bytes = read(&asf.name)?;
+                let asf_shown = job.source.display_name(&asf.name);
+                read_amc(&display, &bytes, &asf_shown, &asf_bytes, opts.asf)?
+            }
+        };
+        clip_from_motion(&display, &job.take.take_id, &motion, opts)
+    })();
+    Done {
+        result,
+        display,
+        format: job.take.format,
+        inputs,
+    }
+}
+
+/// Streaming mean/variance (Chan et al. merge), combined in a fixed order.
+#[derive(Clone)]
+struct Moments {
+    n: f64,
+    mean: [f64; NUM_FEATURES],
+    m2: [f64; NUM_FEATURES],
+}
+
+impl Moments {
+    fn new() -> Self {
+        Moments {
+            n: 0.0,
+            mean: [0.0; NUM_FEATURES],
+            m2: [0.0; NUM_FEATURES],
+        }
+    }
+
+    fn add(&mut self, x: &[f64; NUM_FEATURES], weight: f64) {
+        if weight == 0.0 {
+            return;
+        }
+        let n = self.n + weight;
+        for ((&xi, mean), m2) in x.iter().zip(&mut self.mean).zip(&mut self.m2) {
+            let d = xi - *mean;
+            *mean += d * weight / n;
+            *m2 += weight * d * (xi - *mean);
+        }
+        self.n = n;
+    }
+}
+
+fn write_err(path: &Path, e: impl std::fmt::Display) -> DatasetError {
+    DatasetError::Write {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+fn parquet_writer(
+    path: &Path,
+    schema: SchemaRef,
+) -> Result<ArrowWriter<BufWriter<File>>, DatasetError> {
+    let file = File::create(path).map_err(|e| write_err(path, e))?;
+    let props = WriterProperties::builder()
+        .set_compression(Compression::SNAPPY)
+        .set_max_row_group_row_count(Some(64 * 1024))
+        .set_created_by(format!("mocap-ingest {}", env!("CARGO_PKG_VERSION")))
+        .build();
+    ArrowWriter::try_new(BufWriter::new(file), schema, Some(props)).map_err(|e| write_err(path, e))
+}
+
+fn frames_schema() -> SchemaRef {
+    let mut fields = vec![
+        Field::new("take", DataType::Utf8, false),
+        Field::new("subject", DataType::Utf8, false),
+        Field::new("frame", DataType::UInt32, false),
+    ];
+    for n in feature_names() {
+        fields.push(Field::new(n, DataType::Float32, false));
+    }
+    Arc::new(Schema::new(fields))
+}
+
+fn frames_batch(
+    schema: &SchemaRef,
+    clips: &[&Clip],
+) -> Result<RecordBatch, arrow_schema::ArrowError> {
+    let rows: usize = clips.iter().map(|c| c.features.len()).sum();
+    let mut take = Vec::with_capacity(rows);
+    let mut subject = Vec::with_capacity(rows);
+    let mut frame = Vec::with_capacity(rows);
+    let mut cols: Vec<Vec<f32>> = (0..NUM_FEATURES)
+        .map(|_| Vec::with_capacity(rows))
+        .collect();
+    for c in clips {
+        for (t, f) in c.features.iter().enumerate() {
+            take.push(c.take_id.as_str());
+            subject.push(subject_of(&c.take_id));
+            frame.push(t as u32);
+            for (i, col) in cols.iter_mut().enumerate() {
+                col.push(f[i] as f32);
+            }
+        }
+    }
+    let mut arrays: Vec<ArrayRef> = vec![
+        Arc::new(StringArray::from(take)),
+        Arc::new(StringArray::from(subject)),
+        Arc::new(UInt32Array::from(frame)),
+    ];
+    arrays.extend(
+        cols.into_iter()
+            .map(|c| Arc::new(Float32Array::from(c)) as ArrayRef),
+    );
+    RecordBatch::try_new(schema.clone(), arrays)
+}
+
+/// Progress events for a caller's progress bar.
+pub trait Progress: Sync {
+    /// Called once with the number of motion files.
+    fn start(&self, files: usize);
+    /// Called after each file, in completion order.
+    fn file_done(&self, file: &str, ok: bool);
+}
+
+/// No progress output.
+pub struct NoProgress;
+
+impl Progress for NoProgress {
+    fn start(&self, _: usize) {}
+    fn file_done(&self, _: &str, _: bool) {}
+}
+
+/// Build the dataset from `sources` into `out`, atomically: `out` ends up
+/// either as it was or as the complete new dataset.
+pub fn build_dataset(
+    sources: &[Source],
+    source_labels: &[String],
+    out: &Path,
+    opts: &DatasetOptions,
+    progress: &dyn Progress,
+) -> Result<BuildSummary, DatasetError> {
+    validate(opts)?;
+    // List and de-duplicate takes: the same take id from several files (e.g.
+    // BVH and ASF/AMC) is kept once, preferring ASF/AMC (CMU's original),
+    // then the first in path order.
+    let mut jobs: Vec<Job> = Vec::new();
+    for (source_index, source) in sources.iter().enumerate() {
+        for take in source.takes()? {
+            jobs.push(Job {
+                source,
+                source_index,
+                take,
+            });
+        }
+    }
+    let files = jobs.len();
+    jobs.sort_by(|a, b| {
+        (
+            &a.take.take_id,
+            std::cmp::Reverse(a.take.format),
+            a.source.display_name(&a.take.motion.name),
+        )
+            .cmp(&(
+                &b.take.take_id,
+                std::cmp::Reverse(b.take.format),
+                b.source.display_name(&b.take.motion.name),
+            ))
+    });
+    let mut summary = BuildSummary {
+        files,
+        ..Default::default()
+    };
+    let mut unique: Vec<Job> = Vec::with_capacity(jobs.len());
+    for j in jobs {
+        if let Some(prev) = unique.last() {
+            if prev.take.take_id == j.take.take_id {
+                summary.skipped.push(Skipped {
+                    file: j.source.display_name(&j.take.motion.name),
+                    code: "duplicate_take".into(),
+                    message: format!(
+                        "take {} already read from {}",
+                        j.take.take_id,
+                        prev.source.display_name(&prev.take.motion.name)
+                    ),
+                });
+                continue;
+            }
+        }
+        unique.push(j);
+    }
+    progress.start(files);
+    for s in &summary.skipped {
+        progress.file_done(&s.file, false);
+    }
+
+    let parent = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(|e| write_err(parent, e))?;
+    let name = out
+        .file_name()
+        .ok_or_else(|| DatasetError::Options(format!("{}: not a directory name", out.display())))?
+        .to_string_lossy()
+        .into_owned();
+    let staging = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    remove_stale(parent, &name);
+    if staging.exists() {
+        std::fs::remove_dir_all(&staging).map_err(|e| write_err(&staging, e))?;
+    }
+    std::fs::create_dir_all(&staging).map_err(|e| write_err(&staging, e))?;
+    let result = write_all(
+        &unique,
+        sources.len(),
+        &staging,
+        opts,
+        progress,
+        &mut summary,
+        source_labels,
+    );
+    if let Err(e) = result {
+        let _ = std::fs::remove_dir_all(&staging);
+        return Err(e);
+    }
+    swap_into_place(&staging, out)?;
+    Ok(summary)
+}
+
+fn validate(opts: &DatasetOptions) -> Result<(), DatasetError> {
+    let bad = |m: String| Err(DatasetError::Options(m));
+    if opts.window == 0 || opts.stride == 0 {
+        return bad("window and stride must be positive".into());
+    }
+    let f = opts.fractions;
+    if f.iter().any(|x| !(0.0..=1.0).contains(x)) || (f.iter().sum::<f64>() - 1.0).abs() > 1e-9 {
+        return bad(format!(
+            "split fractions {f:?} must be in [0, 1] and sum to 1"
+        ));
+    }
+    if !(opts.std_floor > 0.0 && opts.std_floor.is_finite()) {
+        return bad("std floor must be positive".into());
+    }
+    if !(opts.ingest.target_fps > 0.0 && opts.ingest.target_fps.is_finite()) {
+        return bad("fps must be positive".into());
+    }
+    Ok(())
+}
+
+/// Remove staging directories left by killed runs (`.NAME.tmp-PID`).
+fn remove_stale(parent: &Path, name: &str) {
+    let prefix = format!(".{name}.tmp-");
+    if let Ok(rd) = std::fs::read_dir(parent) {
+        for e in rd.flatten() {
+            let n = e.file_name().to_string_lossy().into_owned();
+            if let Some(pid) = n.strip_prefix(&prefix) {
+                let alive = pid.parse::<u32>().is_ok_and(|p| {
+                    p != std::process::id() && Path::new(&format!("/proc/{p}")).exists()
+                });
+                if !alive {
+                    let _ = std::fs::remove_dir_all(e.path());
+                }
+            }
+        }
+    }
+}
+
+fn write_all(
+    jobs: &[Job],
+    num_sources: usize,
+    dir: &Path,
+    opts: &DatasetOptions,
+    progress: &dyn Progress,
+    summary: &mut BuildSummary,
+    source_labels: &[String],
+) -> Result<(), DatasetError> {
+    let schema = frames_schema();
+    let frames_path = dir.join("frames.parquet");
+    let mut frames_w = parquet_writer(&frames_path, schema.clone())?;
+    let mut takes_rows: Vec<TakeRow> = Vec::new();
+    let mut windows_rows: Vec<(String, u32, usize)> = Vec::new();
+    let mut inputs: BTreeMap<String, InputFile> = BTreeMap::new();
+    let mut moments = Moments::new();
+
+    for chunk in jobs.chunks(CHUNK) {
+        let done: Vec<Done> = chunk
+            .par_iter()
+            .map_init(
+                || -> Readers { (0..num_sources).map(|_| None).collect() },
+                |readers, job| {
+                    let d = run_job(job, readers, &opts.ingest);
+                    progress.file_done(&d.display, d.result.is_ok());
+                    d
+                },
+            )
+            .collect();
+        let mut ok: Vec<&Clip> = Vec::new();
+        for d in &done {
+            for i in &d.inputs {
+                inputs.entry(i.path.clone()).or_insert(InputFile {
+                    path: i.path.clone(),
+                    size: i.size,
+                    sha256: i.sha256.clone(),
+                });
+            }
+            match &d.result {
+                Ok(clip) => {
+                    let key = match opts.split_by {
+                        SplitBy::Take => clip.take_id.as_str(),
+                        SplitBy::Subject => subject_of(&clip.take_id),
+                    };
+                    let split = split_of(key, opts.seed, opts.fractions);
+                    let starts = window_starts(clip.features.len(), opts.window, opts.stride);
+                    if starts.is_empty() {
+                        summary.short_takes += 1;
+                    }
+                    if split == 0 {
+                        // Multiplicity of each frame in the train windows.
+                        let mut mult = vec![0u32; clip.features.len()];
+                        for &s in &starts {
+                            mult[s..s + opts.window].iter_mut().for_each(|m| *m += 1);
+                        }
+                        for (f, &m) in clip.features.iter().zip(&mult) {
+                            moments.add(f, m as f64);
+                        }
+                    }
+                    summary.takes += 1;
+                    summary.takes_per_split[split] += 1;
+                    summary.windows_per_split[split] += starts.len();
+                    summary.frames += clip.features.len();
+                    summary.native_frames += clip.native_frames;
+                    for &s in &starts {
+                        windows_rows.push((clip.take_id.clone(), s as u32, split));
+                    }
+                    takes_rows.push(TakeRow {
+                        take: clip.take_id.clone(),
+                        file: d.display.clone(),
+                        format: d.format.as_str(),
+                        skeleton: clip.skeleton.name(),
+                        source_fps: clip.source_fps,
+                        native_frames: clip.native_frames as u32,
+                        frames: clip.features.len() as u32,
+                        split,
+                    });
+                    ok.push(clip);
+                }
+                Err(e) => summary.skipped.push(Skipped {
+                    file: e.file.clone(),
+                    code: e.code().into(),
+                    message: e.to_string(),
+                }),
+            }
+        }
+        if !ok.is_empty() {
+            let batch = frames_batch(&schema, &ok).map_err(|e| write_err(&frames_path, e))?;
+            frames_w
+                .write(&batch)
+                .map_err(|e| write_err(&frames_path, e))?;
+        }
+    }
+    summary.input_bytes = inputs.values().map(|i| i.size).sum();
+    if summary.takes == 0 {
+        return Err(DatasetError::Empty {
+            files: summary.files,
+        });
+    }
+    let file = frames_w
+        .into_inner()
+        .map_err(|e| write_err(&frames_path, e))?;
+    finish_file(file, &frames_path)?;
+
+    write_takes(&dir.join("takes.parquet"), &takes_rows)?;
+    write_windows(&dir.join("windows.parquet"), &windows_rows, opts.window)?;
+    if moments.n == 0.0 {
+        return Err(DatasetError::Options(
+            "the train split has no windows: use more data, a shorter --window or other split fractions".into(),
+        ));
+    }
+    let stats = stats_of(&moments, opts.std_floor);
+    write_json(&dir.join("stats.json"), &stats)?;
+    summary.skipped.sort_by(|a, b| a.file.cmp(&b.file));
+    write_json(&dir.join("skipped.json"), &summary.skipped)?;
+
+    // The manifest comes last: it hashes every other output.
+    let mut outputs = Vec::new();
+    for f in [
+        "frames.parquet",
+        "takes.parquet",
+        "windows.parquet",
+        "stats.json",
+        "skipped.json",
+    ] {
+        let p = dir.join(f);
+        let bytes = std::fs::read(&p).map_err(|e| write_err(&p, e))?;
+        outputs.push(OutputFile {
+            path: f.into(),
+            size: bytes.len() as u64,
+            sha256: sha256_hex(&bytes),
+        });
+    }
+    let manifest = serde_json::json!({
+        "tool": "mocap-ingest",
+        "tool_version": env!("CARGO_PKG_VERSION"),
+        "format_version": FORMAT_VERSION,
+        "sources": source_labels,
+        "options": {
+            "fps": opts.ingest.target_fps,
+            "window": opts.window,
+            "stride": opts.stride,
+            "split_fractions": opts.fractions,
+            "seed": opts.seed,
+            "split_by": opts.split_by,
+            "std_floor": opts.std_floor,
+            "full_asf_skeleton": opts.ingest.asf.full_skeleton,
+            "frame_rate_overrides": frame_rate_overrides(&opts.ingest),
+        },
+        "counts": {
+            "files": summary.files,
+            "takes": summary.takes,
+            "skipped": summary.skipped.len(),
+            "short_takes": summary.short_takes,
+            "native_frames": summary.native_frames,
+            "frames": summary.frames,
+            "takes_per_split": split_map(summary.takes_per_split),
+            "windows_per_split": split_map(summary.windows_per_split),
+        },
+        "inputs": inputs.values().collect::<Vec<_>>(),
+        "outputs": outputs,
+    });
+    write_json(&dir.join("manifest.json"), &manifest)?;
+    Ok(())
+}
+
+fn frame_rate_overrides(o: &Options) -> BTreeMap<String, f64> {
+    let builtin = crate::fps::FrameRateTable::default();
+    o.frame_rates
+        .entries()
+        .filter(|(k, v)| builtin.get(k) != Some(*v))
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
+}
+
+fn split_map(v: [usize; 3]) -> serde_json::Value {
+    serde_json::json!({ "train": v[0], "val": v[1], "test": v[2] })
+}
+
+fn stats_of(m: &Moments, floor: f64) -> Stats {
+    let names = feature_names();
+    let std_raw: Vec<f64> = m.m2.iter().map(|v| (v / m.n).max(0.0).sqrt()).collect();
+    let std: Vec<f64> = std_raw.iter().map(|s| s.max(floor)).collect();
+    let floored = names
+        .iter()
+        .zip(&std_raw)
+        .filter(|(_, s)| **s < floor)
+        .map(|(n, _)| n.clone())
+        .collect();
+    Stats {
+        features: names,
+        mean: m.mean.to_vec(),
+        std,
+        std_raw,
+        std_floor: floor,
+        floored,
+        count: m.n as u64,
+    }
+}
+
+fn finish_file(w: BufWriter<File>, path: &Path) -> Result<(), DatasetError> {
+    let f = w.into_inner().map_err(|e| write_err(path, e.error()))?;
+    f.sync_all().map_err(|e| write_err(path, e))
+}
+
+fn write_json(path: &Path, value: &impl Serialize) -> Result<(), DatasetError> {
+    let mut text = serde_json::to_string_pretty(value).map_err(|e| write_err(path, e))?;
+    text.push('\n');
+    let mut f = File::create(path).map_err(|e| write_err(path, e))?;
+    f.write_all(text.as_bytes())
+        .map_err(|e| write_err(path, e))?;
+    f.sync_all().map_err(|e| write_err(path, e))
+}
+
+/// One row of `takes.parquet`.
+struct TakeRow {
+    take: String,
+    file: String,
+    format: &'static str,
+    skeleton: &'static str,
+    source_fps: f64,
+    native_frames: u32,
+    frames: u32,
+    split: usize,
+}
+
+fn write_takes(path: &Path, rows: &[TakeRow]) -> Result<(), DatasetError> {
+    let schema = Arc::new(Schema::new(vec![
+        Field::new("take", DataType::Utf8, false),
+        Field::new("subject", DataType::Utf8, false),
+        Field::new("file", DataType::Utf8, false),
+        Field::new("format", DataType::Utf8, false),
+        Field::new("skeleton", DataType::Utf8, false),
+        Field::new("source_fps", DataType::Float32, false),
+        Field::new("native_frames", DataType::UInt32, false),
+        Field::new("frames", DataType::UInt32, false),
+        Field::new("split", DataType::Utf8, false),
+    ]));
+    let strings = |f: fn(&TakeRow) -> &str| -> ArrayRef {
+        Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
+    };
+    let counts = |f: fn(&TakeRow) -> u32| -> ArrayRef {
+        Arc::new(UInt32Array::from_iter_values(rows.iter().map(f)))
+    };
+    let cols: Vec<ArrayRef> = vec![
+        strings(|r| &r.take),
+        strings(|r| subject_of(&r.take)),
+        strings(|r| &r.file),
+        strings(|r| r.format),
+        strings(|r| r.skeleton),
+        Arc::new(Float32Array::from_iter_values(
+            rows.iter().map(|r| r.source_fps as f32),
+        )),
+        counts(|r| r.native_frames),
+        counts(|r| r.frames),
+        strings(|r| SPLITS[r.split]),
+    ];
+    write_table(path, schema, cols)
+}
+
+fn write_windows(
+    path: &Path,
+    rows: &[(String, u32, usize)],
+    window: usize,
+) -> Result<(), DatasetError> {
+    let schema = Arc::new(Schema::new(vec![
+        Field::new("take", DataType::Utf8, false),
+        Field::new("start", DataType::UInt32, false),
+        Field::new("length", DataType::UInt32, false),
+        Field::new("split", DataType::Utf8, false),
+    ]));
+    let cols: Vec<ArrayRef> = vec![
+        Arc::new(StringArray::from_iter_values(
+            rows.iter().map(|r| r.0.as_str()),
+        )),
+        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.1))),
+        Arc::new(UInt32Array::from_iter_values(
+            rows.iter().map(|_| window as u32),
+        )),
+        Arc::new(StringArray::from_iter_values(
+            rows.iter().map(|r| SPLITS[r.2]),
+        )),
+    ];
+    write_table(path, schema, cols)
+}
+
+fn write_table(path: &Path, schema: SchemaRef, cols: Vec<ArrayRef>) -> Result<(), DatasetError> {
+    let batch = RecordBatch::try_new(schema.clone(), cols).map_err(|e| write_err(path, e))?;
+    let mut w = parquet_writer(path, schema)?;
+    w.write(&batch).map_err(|e| write_err(path, e))?;
+    let f = w.into_inner().map_err(|e| write_err(path, e))?;
+    finish_file(f, path)
+}
+
+/// Put the finished staging directory at `out`. On Linux an existing `out`
+/// is exchanged atomically (`renameat2(RENAME_EXCHANGE)`), so readers see the
+/// old or the new dataset, never a mixture or nothing; the old one is then
+/// removed.
+fn swap_into_place(staging: &Path, out: &Path) -> Result<(), DatasetError> {
+    if out.exists() {
+        if !out.join("manifest.json").exists()
+            && std::fs::read_dir(out)
+                .map(|mut d| d.next().is_some())
+                .unwrap_or(true)
+        {
+            return Err(DatasetError::Write {
+                path: out.to_path_buf(),
+                message: "exists and is not a dataset (no manifest.json); refusing to replace it"
+                    .into(),
+            });
+        }
+        exchange(staging, out)?;
+        // `staging` now holds the previous dataset.
+        std::fs::remove_dir_all(staging).map_err(|e| write_err(staging, e))?;
+    } else {
+        std::fs::rename(staging, out).map_err(|e| write_err(out, e))?;
+    }
+    if let Some(parent) = out.parent() {
+        if let Ok(d) = File::open(if parent.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            parent
+        }) {
+            let _ = d.sync_all();
+        }
+    }
+    Ok(())
+}
+
+#[cfg(target_os = "linux")]
+fn exchange(a: &Path, b: &Path) -> Result<(), DatasetError> {
+    use std::ffi::CString;
+    use std::os::unix::ffi::OsStrExt;
+    let ca = CString::new(a.as_os_str().as_bytes()).map_err(|e| write_err(a, e))?;
+    let cb = CString::new(b.as_os_str().as_bytes()).map_err(|e| write_err(b, e))?;
+    // SAFETY: both are valid NUL-terminated paths; renameat2 only reads them.
+    let rc = unsafe {
+        libc::renameat2(
+            libc::AT_FDCWD,
+            ca.as_ptr(),
+            libc::AT_FDCWD,
+            cb.as_ptr(),
+            libc::RENAME_EXCHANGE,
+        )
+    };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(write_err(b, std::io::Error::last_os_error()))
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn exchange(a: &Path, b: &Path) -> Result<(), DatasetError> {
+    // Two renames: a crash in between leaves the old dataset at `b.old`.
+    let old = b.with_extension("old");
+    std::fs::rename(b, &old).map_err(|e| write_err(b, e))?;
+    std::fs::rename(a, b).map_err(|e| write_err(b, e))?;
+    std::fs::rename(&old, a).map_err(|e| write_err(a, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn windows_cover_whole_windows_only() {
+        assert_eq!(window_starts(127, 128, 64), Vec::<usize>::new());
+        assert_eq!(window_starts(128, 128, 64), vec![0]);
+        assert_eq!(window_starts(320, 128, 64), vec![0, 64, 128, 192]);
+    }
+
+    #[test]
+    fn split_is_stable_and_roughly_proportional() {
+        let f = [0.8, 0.1, 0.1];
+        assert_eq!(split_of("02_01", 7, f), split_of("02_01", 7, f));
+        let mut counts = [0; 3];
+        for i in 0..10_000 {
+            counts[split_of(&format!("{:02}_{:02}", i / 100, i % 100), 0, f)] += 1;
+        }
+        assert!((7700..8300).contains(&counts[0]), "{counts:?}");
+        assert!((800..1200).contains(&counts[1]), "{counts:?}");
+        let all_train = [1.0, 0.0, 0.0];
+        assert_eq!(split_of("x", 1, all_train), 0);
+    }
+
+    #[test]
+    fn moments_match_two_pass_statistics() {
+        let mut m = Moments::new();
+        let xs = [1.0, 2.0, 4.0, 7.0];
+        let ws = [1.0, 2.0, 0.0, 1.0];
+        for (x, w) in xs.iter().zip(ws) {
+            m.add(&[*x; NUM_FEATURES], w);
+        }
+        // Weighted: values 1, 2, 2, 7 → mean 3, variance (4+1+1+16)/4 = 5.5.
+        assert!((m.mean[0] - 3.0).abs() < 1e-12);
+        assert!((m.m2[0] / m.n - 5.5).abs() < 1e-12);
+    }
+}
