@@ -15,6 +15,7 @@ use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use parquet::arrow::ArrowWriter;
 use parquet::basic::Compression;
 use parquet::file::properties::WriterProperties;
+use parquet::schema::types::ColumnPath;
 use rayon::prelude::*;
 use serde::Serialize;
 use sha2::{Digest, Sha256};
@@ -326,8 +327,14 @@ fn parquet_writer(
     schema: SchemaRef,
 ) -> Result<ArrowWriter<BufWriter<File>>, DatasetError> {
     let file = File::create(path).map_err(|e| write_err(path, e))?;
+    // Dictionaries only for the repeated id strings; for float features they
+    // cost time (interning every value) and save nothing.
     let props = WriterProperties::builder()
         .set_compression(Compression::SNAPPY)
+        .set_dictionary_enabled(false)
+        .set_column_dictionary_enabled(ColumnPath::from("take"), true)
+        .set_column_dictionary_enabled(ColumnPath::from("subject"), true)
+        .set_column_dictionary_enabled(ColumnPath::from("split"), true)
         .set_max_row_group_row_count(Some(64 * 1024))
         .set_created_by(format!("mocap-ingest {}", env!("CARGO_PKG_VERSION")))
         .build();
@@ -439,14 +446,15 @@ pub fn build_dataset(
     for j in jobs {
         if let Some(prev) = unique.last() {
             if prev.take.take_id == j.take.take_id {
+                let file = j.source.display_name(&j.take.motion.name);
                 summary.skipped.push(Skipped {
-                    file: j.source.display_name(&j.take.motion.name),
-                    code: "duplicate_take".into(),
                     message: format!(
-                        "take {} already read from {}",
+                        "{file}: duplicate take {}, already read from {}",
                         j.take.take_id,
                         prev.source.display_name(&prev.take.motion.name)
                     ),
+                    file,
+                    code: "duplicate_take".into(),
                 });
                 continue;
             }
