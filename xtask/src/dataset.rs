@@ -41,7 +41,7 @@ pub struct DatasetArgs {
     #[arg(long, default_value_t = 64)]
     stride: usize,
     /// Train,val,test fractions.
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [0.8, 0.1, 0.1])]
+    #[arg(long, value_delimiter = ',', default_values_t = [0.8, 0.1, 0.1])]
     split: Vec<f64>,
     /// Seed of the split.
     #[arg(long, default_value_t = 0)]

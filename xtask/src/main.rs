@@ -5,6 +5,8 @@
 
 mod dataset;
 mod fetch;
+mod plot;
+mod train;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -26,6 +28,8 @@ enum Command {
     /// Build the training dataset: CMU files → Parquet frames, windows,
     /// split, normalisation statistics and manifest.
     Dataset(dataset::DatasetArgs),
+    /// Train the paper's VRNN on a dataset (checkpoints, metrics, loss curve).
+    Train(train::TrainArgs),
     /// Benchmark `dataset` end to end on the CMU samples, 1 thread and all
     /// cores, each in a fresh process (reports peak RSS).
     BenchDataset {
@@ -59,6 +63,7 @@ enum Command {
 fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Dataset(args) => dataset::run(args),
+        Command::Train(args) => train::run(args),
         Command::BenchDataset { sources, repeat } => dataset::bench(sources, repeat),
         Command::BenchIngest { sources, repeat } => bench_ingest(sources, repeat),
         Command::Inspect {

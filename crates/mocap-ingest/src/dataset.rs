@@ -831,71 +831,20 @@ fn write_table(path: &Path, schema: SchemaRef, cols: Vec<ArrayRef>) -> Result<()
     finish_file(f, path)
 }
 
-/// Put the finished staging directory at `out`. On Linux an existing `out`
-/// is exchanged atomically (`renameat2(RENAME_EXCHANGE)`), so readers see the
-/// old or the new dataset, never a mixture or nothing; the old one is then
-/// removed.
+/// Put the finished staging directory at `out` (see [`crate::atomic`]),
+/// refusing to replace a non-empty directory that is not a dataset.
 fn swap_into_place(staging: &Path, out: &Path) -> Result<(), DatasetError> {
-    if out.exists() {
-        if !out.join("manifest.json").exists()
-            && std::fs::read_dir(out)
-                .map(|mut d| d.next().is_some())
-                .unwrap_or(true)
-        {
-            return Err(DatasetError::Write {
-                path: out.to_path_buf(),
-                message: "exists and is not a dataset (no manifest.json); refusing to replace it"
-                    .into(),
-            });
-        }
-        exchange(staging, out)?;
-        // `staging` now holds the previous dataset.
-        std::fs::remove_dir_all(staging).map_err(|e| write_err(staging, e))?;
-    } else {
-        std::fs::rename(staging, out).map_err(|e| write_err(out, e))?;
+    let non_empty = std::fs::read_dir(out)
+        .map(|mut d| d.next().is_some())
+        .unwrap_or(false);
+    if non_empty && !out.join("manifest.json").exists() {
+        return Err(DatasetError::Write {
+            path: out.to_path_buf(),
+            message: "exists and is not a dataset (no manifest.json); refusing to replace it"
+                .into(),
+        });
     }
-    if let Some(parent) = out.parent() {
-        if let Ok(d) = File::open(if parent.as_os_str().is_empty() {
-            Path::new(".")
-        } else {
-            parent
-        }) {
-            let _ = d.sync_all();
-        }
-    }
-    Ok(())
-}
-
-#[cfg(target_os = "linux")]
-fn exchange(a: &Path, b: &Path) -> Result<(), DatasetError> {
-    use std::ffi::CString;
-    use std::os::unix::ffi::OsStrExt;
-    let ca = CString::new(a.as_os_str().as_bytes()).map_err(|e| write_err(a, e))?;
-    let cb = CString::new(b.as_os_str().as_bytes()).map_err(|e| write_err(b, e))?;
-    // SAFETY: both are valid NUL-terminated paths; renameat2 only reads them.
-    let rc = unsafe {
-        libc::renameat2(
-            libc::AT_FDCWD,
-            ca.as_ptr(),
-            libc::AT_FDCWD,
-            cb.as_ptr(),
-            libc::RENAME_EXCHANGE,
-        )
-    };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(write_err(b, std::io::Error::last_os_error()))
-    }
-}
-
-#[cfg(not(target_os = "linux"))]
-fn exchange(a: &Path, b: &Path) -> Result<(), DatasetError> {
-    // Two renames: a crash in between leaves the old dataset at `b.old`.
-    let old = b.with_extension("old");
-    std::fs::rename(b, &old).map_err(|e| write_err(b, e))?;
-    std::fs::rename(a, b).map_err(|e| write_err(b, e))?;
-    std::fs::rename(&old, a).map_err(|e| write_err(a, e))
+    crate::atomic::replace_dir(staging, out).map_err(|e| write_err(out, e))
 }
 
 #[cfg(test)]

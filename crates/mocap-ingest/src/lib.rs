@@ -9,6 +9,7 @@
 //! Formats, units and the feature layout are documented in `docs/features.md`.
 
 pub mod asf;
+pub mod atomic;
 pub mod bvh;
 pub mod dataset;
 pub mod error;

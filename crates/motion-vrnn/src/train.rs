@@ -1,0 +1,548 @@
+//! Training: Adam over shuffled windows, validation each epoch, metrics log,
+//! `best` and `last` checkpoints (safetensors + JSON, written atomically),
+//! exact resume, a NaN guard.
+
+use crate::data::{Dataset, Windows};
+use crate::model::{Config, Vrnn};
+use crate::optim::{clip_grad_norm, Adam, AdamConfig};
+use crate::rng::Rng;
+use candle_core::{DType, Device, Tensor, Var};
+use candle_nn::{VarBuilder, VarMap};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// A failure that stops training.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// A tensor operation failed.
+    #[error("tensor error: {0}")]
+    Candle(#[from] candle_core::Error),
+    /// A file could not be read or written.
+    #[error("{path}: {message}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What failed.
+        message: String,
+    },
+    /// The loss became NaN or infinite.
+    #[error("non-finite loss at step {step} (epoch {epoch}): recon {recon}, kl {kl}; the last good checkpoint is kept in {dir}")]
+    NonFinite {
+        /// Global step.
+        step: u64,
+        /// Epoch.
+        epoch: usize,
+        /// Reconstruction loss.
+        recon: f32,
+        /// KL loss.
+        kl: f32,
+        /// Run directory.
+        dir: PathBuf,
+    },
+    /// Options or inputs that cannot work.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+fn io_err(path: &Path, e: impl std::fmt::Display) -> TrainError {
+    TrainError::Io {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+/// Training options.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainConfig {
+    /// Model sizes.
+    pub model: Config,
+    /// Optimiser.
+    pub adam: AdamConfig,
+    /// Windows per step.
+    pub batch: usize,
+    /// Epochs to run.
+    pub epochs: usize,
+    /// Seed of initialisation, shuffling and noise.
+    pub seed: u64,
+    /// Epochs over which the KL weight rises linearly from 0 to 1 (0: off).
+    pub kl_warmup_epochs: usize,
+    /// Clip the global gradient norm to this (None: off).
+    pub clip_grad_norm: Option<f64>,
+    /// Stop after this many epochs without a better validation loss (None: off).
+    pub early_stopping: Option<usize>,
+}
+
+impl TrainConfig {
+    /// The paper's settings: Adam 1e-3, batch 1,600, 2,000 epochs, no warm-up,
+    /// no clipping, no early stopping.
+    pub fn paper() -> Self {
+        TrainConfig {
+            model: Config::default(),
+            adam: AdamConfig::default(),
+            batch: 1600,
+            epochs: 2000,
+            seed: 0,
+            kl_warmup_epochs: 0,
+            clip_grad_norm: None,
+            early_stopping: None,
+        }
+    }
+
+    /// A quick look: batch 64, 30 epochs, KL warm-up over 5 epochs, clipping
+    /// at 100, early stopping after 10 epochs without improvement.
+    pub fn quick() -> Self {
+        TrainConfig {
+            batch: 64,
+            epochs: 30,
+            kl_warmup_epochs: 5,
+            clip_grad_norm: Some(100.0),
+            early_stopping: Some(10),
+            ..Self::paper()
+        }
+    }
+
+    /// KL weight in `epoch` (0-based).
+    pub fn kl_weight(&self, epoch: usize) -> f64 {
+        if self.kl_warmup_epochs == 0 {
+            1.0
+        } else {
+            ((epoch + 1) as f64 / self.kl_warmup_epochs as f64).min(1.0)
+        }
+    }
+}
+
+/// One epoch's metrics (a line of `metrics.jsonl`). Losses are summed over
+/// the frames of a window and averaged over windows.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpochMetrics {
+    /// Epoch (1-based).
+    pub epoch: usize,
+    /// Global step at the end of the epoch.
+    pub step: u64,
+    /// Train reconstruction loss (mean over the epoch's batches).
+    pub train_recon: f64,
+    /// Train KL.
+    pub train_kl: f64,
+    /// Validation reconstruction loss.
+    pub val_recon: f64,
+    /// Validation KL.
+    pub val_kl: f64,
+    /// KL weight used.
+    pub kl_weight: f64,
+    /// Training throughput, windows per second.
+    pub windows_per_s: f64,
+    /// Seconds of this epoch.
+    pub seconds: f64,
+}
+
+impl EpochMetrics {
+    /// Validation loss (recon + KL, unweighted): what `best` minimises.
+    pub fn val_loss(&self) -> f64 {
+        self.val_recon + self.val_kl
+    }
+}
+
+/// What a checkpoint's JSON says.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointMeta {
+    /// Training options.
+    pub config: TrainConfig,
+    /// SHA-256 of the dataset's manifest.json.
+    pub dataset_manifest_sha256: String,
+    /// The dataset directory.
+    pub dataset: String,
+    /// Epochs completed.
+    pub epoch: usize,
+    /// Optimiser steps completed.
+    pub step: u64,
+    /// Best validation loss so far and its epoch.
+    pub best_val_loss: f64,
+    /// Epoch of the best validation loss.
+    pub best_epoch: usize,
+    /// Metrics of the last epoch.
+    pub metrics: Option<EpochMetrics>,
+}
+
+/// Progress callbacks for a caller's progress bar.
+pub trait TrainProgress {
+    /// After each optimiser step.
+    fn step(&self, epoch: usize, step: u64, recon: f32, kl: f32, windows_per_s: f64);
+    /// After each epoch.
+    fn epoch(&self, metrics: &EpochMetrics);
+}
+
+/// No progress output.
+pub struct Quiet;
+
+impl TrainProgress for Quiet {
+    fn step(&self, _: usize, _: u64, _: f32, _: f32, _: f64) {}
+    fn epoch(&self, _: &EpochMetrics) {}
+}
+
+/// A model with its variables.
+pub struct Trained {
+    /// The variables.
+    pub varmap: VarMap,
+    /// The model.
+    pub model: Vrnn,
+}
+
+/// Build a model with deterministic initial weights from `seed`:
+/// `U(−1/√fan_in, 1/√fan_in)` for every weight and bias (PyTorch's default
+/// for linear and LSTM layers), filled in name order.
+pub fn init_model(config: &Config, seed: u64, device: &Device) -> Result<Trained, TrainError> {
+    let varmap = VarMap::new();
+    let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
+    let model = Vrnn::new(config, vb)?;
+    let mut vars = named_vars(&varmap);
+    vars.sort_by(|a, b| a.0.cmp(&b.0));
+    let fan_in: HashMap<String, usize> = vars
+        .iter()
+        .filter(|(n, _)| n.contains("weight"))
+        .map(|(n, v)| (n.clone(), v.dims().get(1).copied().unwrap_or(1)))
+        .collect();
+    let mut rng = Rng::new(seed, 0x1417);
+    for (name, var) in &vars {
+        let fan = if name.starts_with("rnn.") {
+            config.hidden
+        } else {
+            let w = name.replace(".bias", ".weight");
+            fan_in.get(&w).copied().unwrap_or(1)
+        };
+        let bound = 1.0 / (fan as f64).sqrt();
+        let n = var.elem_count();
+        let vals: Vec<f32> = (0..n)
+            .map(|_| ((rng.uniform() * 2.0 - 1.0) * bound) as f32)
+            .collect();
+        var.set(&Tensor::from_vec(vals, var.shape(), device)?)?;
+    }
+    Ok(Trained { varmap, model })
+}
+
+/// The variables of a var map with their names.
+pub fn named_vars(varmap: &VarMap) -> Vec<(String, Var)> {
+    let data = varmap.data().lock().unwrap_or_else(|p| p.into_inner());
+    data.iter().map(|(k, v)| (k.clone(), v.clone())).collect()
+}
+
+/// Reparameterisation noise of global step `step`: `[T, B, latent]`.
+pub fn noise(
+    seed: u64,
+    step: u64,
+    t: usize,
+    b: usize,
+    latent: usize,
+    device: &Device,
+) -> candle_core::Result<Tensor> {
+    let v = Rng::new(seed ^ 0x5EED_0000_0000, step).normals(t * b * latent);
+    Tensor::from_vec(v, (t, b, latent), device)
+}
+
+/// Mean losses over all windows of a split, in batches, with fixed noise.
+pub fn evaluate(
+    model: &Vrnn,
+    windows: &Windows,
+    batch: usize,
+    seed: u64,
+    device: &Device,
+) -> Result<(f64, f64), TrainError> {
+    let mut recon = 0.0;
+    let mut kl = 0.0;
+    let idx: Vec<usize> = (0..windows.n).collect();
+    for (k, chunk) in idx.chunks(batch.max(1)).enumerate() {
+        let x = windows.batch(chunk, device)?;
+        let eps = noise(
+            seed ^ 0xE7A1,
+            k as u64,
+            windows.length,
+            chunk.len(),
+            model.config().latent,
+            device,
+        )?;
+        let l = model.forward(&x, &eps)?;
+        let w = chunk.len() as f64;
+        recon += l.recon.to_scalar::<f32>()? as f64 * w;
+        kl += l.kl.to_scalar::<f32>()? as f64 * w;
+    }
+    let n = windows.n.max(1) as f64;
+    Ok((recon / n, kl / n))
+}
+
+/// Files of a run directory.
+pub mod layout {
+    /// Metrics log, one JSON object per epoch.
+    pub const METRICS: &str = "metrics.jsonl";
+    /// Latest checkpoint (with optimiser state).
+    pub const LAST: &str = "last";
+    /// Checkpoint with the lowest validation loss.
+    pub const BEST: &str = "best";
+    /// Model weights inside a checkpoint directory.
+    pub const MODEL: &str = "model.safetensors";
+    /// Optimiser moments inside a checkpoint directory.
+    pub const OPTIMIZER: &str = "optimizer.safetensors";
+    /// Checkpoint metadata inside a checkpoint directory.
+    pub const META: &str = "checkpoint.json";
+}
+
+fn save_checkpoint(
+    run: &Path,
+    name: &str,
+    varmap: &VarMap,
+    adam: Option<&Adam>,
+    meta: &CheckpointMeta,
+) -> Result<(), TrainError> {
+    let staging = run.join(format!(".{name}.tmp-{}", std::process::id()));
+    if staging.exists() {
+        std::fs::remove_dir_all(&staging).map_err(|e| io_err(&staging, e))?;
+    }
+    std::fs::create_dir_all(&staging).map_err(|e| io_err(&staging, e))?;
+    let weights: HashMap<String, Tensor> = named_vars(varmap)
+        .into_iter()
+        .map(|(k, v)| (k, v.as_tensor().clone()))
+        .collect();
+    let mp = staging.join(layout::MODEL);
+    candle_core::safetensors::save(&weights, &mp).map_err(|e| io_err(&mp, e))?;
+    if let Some(adam) = adam {
+        let op = staging.join(layout::OPTIMIZER);
+        candle_core::safetensors::save(&adam.state(), &op).map_err(|e| io_err(&op, e))?;
+    }
+    let jp = staging.join(layout::META);
+    let text = serde_json::to_string_pretty(meta).map_err(|e| io_err(&jp, e))?;
+    std::fs::write(&jp, text + "\n").map_err(|e| io_err(&jp, e))?;
+    for f in [layout::MODEL, layout::OPTIMIZER, layout::META] {
+        if let Ok(file) = std::fs::File::open(staging.join(f)) {
+            file.sync_all().map_err(|e| io_err(&staging.join(f), e))?;
+        }
+    }
+    mocap_ingest::atomic::replace_dir(&staging, &run.join(name))
+        .map_err(|e| io_err(&run.join(name), e))
+}
+
+/// Read a checkpoint's metadata.
+pub fn read_meta(dir: &Path) -> Result<CheckpointMeta, TrainError> {
+    let p = dir.join(layout::META);
+    let text = std::fs::read_to_string(&p).map_err(|e| io_err(&p, e))?;
+    serde_json::from_str(&text).map_err(|e| io_err(&p, e))
+}
+
+/// Load a checkpoint's model (for sampling, evaluation, tests).
+pub fn load_model(dir: &Path, device: &Device) -> Result<(Trained, CheckpointMeta), TrainError> {
+    let meta = read_meta(dir)?;
+    let mut t = init_model(&meta.config.model, 0, device)?;
+    let mp = dir.join(layout::MODEL);
+    t.varmap.load(&mp).map_err(|e| io_err(&mp, e))?;
+    Ok((t, meta))
+}
+
+/// Train on `data` into the run directory `run`. With `resume`, continue from
+/// `run/last` (weights, optimiser, epoch, best); otherwise `run` must not hold
+/// a checkpoint yet.
+pub fn train(
+    data: &Dataset,
+    config: &TrainConfig,
+    run: &Path,
+    resume: bool,
+    device: &Device,
+    progress: &dyn TrainProgress,
+) -> Result<Outcome, TrainError> {
+    let train = data
+        .splits
+        .get("train")
+        .filter(|w| w.n > 0)
+        .ok_or_else(|| TrainError::Invalid(format!("{}: no train windows", data.dir.display())))?;
+    if train.features != config.model.input {
+        return Err(TrainError::Invalid(format!(
+            "the dataset has {} features per frame, the model expects {}",
+            train.features, config.model.input
+        )));
+    }
+    if config.batch == 0 {
+        return Err(TrainError::Invalid("batch must be positive".into()));
+    }
+    let val = data.splits.get("val").filter(|w| w.n > 0);
+    std::fs::create_dir_all(run).map_err(|e| io_err(run, e))?;
+    let metrics_path = run.join(layout::METRICS);
+
+    let t = init_model(&config.model, config.seed, device)?;
+    let mut adam = Adam::new(named_vars(&t.varmap), config.adam)?;
+    let mut history: Vec<EpochMetrics> = Vec::new();
+    let mut start_epoch = 0;
+    let mut best = (f64::INFINITY, 0usize);
+    let last_dir = run.join(layout::LAST);
+    if resume {
+        let meta = read_meta(&last_dir)?;
+        // Only the number of epochs may change on resume.
+        let same_but_epochs = TrainConfig {
+            epochs: meta.config.epochs,
+            ..config.clone()
+        };
+        if meta.config != same_but_epochs {
+            return Err(TrainError::Invalid(format!(
+                "{}: the checkpoint was trained with other options; resume with the same ones (only --epochs may change)",
+                last_dir.display()
+            )));
+        }
+        if meta.dataset_manifest_sha256 != data.manifest_sha256 {
+            return Err(TrainError::Invalid(format!(
+                "{}: the checkpoint was trained on another dataset (manifest hash differs)",
+                last_dir.display()
+            )));
+        }
+        let mut vm = t.varmap.clone();
+        let mp = last_dir.join(layout::MODEL);
+        vm.load(&mp).map_err(|e| io_err(&mp, e))?;
+        // `vm` shares its variables with `t.varmap`: the model now has the weights.
+        let op = last_dir.join(layout::OPTIMIZER);
+        let state = candle_core::safetensors::load(&op, device).map_err(|e| io_err(&op, e))?;
+        adam.load_state(&state, meta.step)?;
+        start_epoch = meta.epoch;
+        best = (meta.best_val_loss, meta.best_epoch);
+        // Keep the metrics of the epochs the checkpoint has seen.
+        if let Ok(text) = std::fs::read_to_string(&metrics_path) {
+            history = text
+                .lines()
+                .filter_map(|l| serde_json::from_str::<EpochMetrics>(l).ok())
+                .filter(|m| m.epoch <= meta.epoch)
+                .collect();
+        }
+        rewrite_metrics(&metrics_path, &history)?;
+    } else {
+        if last_dir.exists() {
+            return Err(TrainError::Invalid(format!(
+                "{} already holds a run: pass --resume to continue it, or choose another --out",
+                run.display()
+            )));
+        }
+        rewrite_metrics(&metrics_path, &[])?;
+    }
+
+    let vars = adam.vars().to_vec();
+    let mut stale = history.len().saturating_sub(best.1);
+    for epoch in start_epoch..config.epochs {
+        if config.early_stopping.is_some_and(|p| stale >= p) {
+            break;
+        }
+        let started = std::time::Instant::now();
+        let kl_w = config.kl_weight(epoch);
+        let perm = Rng::new(config.seed, 1000 + epoch as u64).permutation(train.n);
+        let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
+        for chunk in perm.chunks(config.batch) {
+            let step = adam.step + 1;
+            let x = train.batch(chunk, device)?;
+            let eps = noise(
+                config.seed,
+                step,
+                train.length,
+                chunk.len(),
+                config.model.latent,
+                device,
+            )?;
+            let l = t.model.forward(&x, &eps)?;
+            let loss = (&l.recon + (&l.kl * kl_w)?)?;
+            let (r, k) = (l.recon.to_scalar::<f32>()?, l.kl.to_scalar::<f32>()?);
+            if !(r.is_finite() && k.is_finite()) {
+                return Err(TrainError::NonFinite {
+                    step,
+                    epoch: epoch + 1,
+                    recon: r,
+                    kl: k,
+                    dir: run.to_path_buf(),
+                });
+            }
+            let mut grads = loss.backward()?;
+            if let Some(max) = config.clip_grad_norm {
+                clip_grad_norm(&vars, &mut grads, max)?;
+            }
+            adam.step(&grads)?;
+            sum_r += r as f64 * chunk.len() as f64;
+            sum_k += k as f64 * chunk.len() as f64;
+            seen += chunk.len();
+            let wps = seen as f64 / started.elapsed().as_secs_f64().max(1e-9);
+            progress.step(epoch + 1, adam.step, r, k, wps);
+        }
+        let train_secs = started.elapsed().as_secs_f64();
+        let (val_recon, val_kl) = match val {
+            Some(v) => evaluate(&t.model, v, config.batch, config.seed, device)?,
+            None => (sum_r / seen as f64, sum_k / seen as f64),
+        };
+        let m = EpochMetrics {
+            epoch: epoch + 1,
+            step: adam.step,
+            train_recon: sum_r / seen as f64,
+            train_kl: sum_k / seen as f64,
+            val_recon,
+            val_kl,
+            kl_weight: kl_w,
+            windows_per_s: seen as f64 / train_secs.max(1e-9),
+            seconds: started.elapsed().as_secs_f64(),
+        };
+        if !m.val_loss().is_finite() {
+            return Err(TrainError::NonFinite {
+                step: adam.step,
+                epoch: epoch + 1,
+                recon: val_recon as f32,
+                kl: val_kl as f32,
+                dir: run.to_path_buf(),
+            });
+        }
+        let improved = m.val_loss() < best.0;
+        if improved {
+            best = (m.val_loss(), m.epoch);
+            stale = 0;
+        } else {
+            stale += 1;
+        }
+        let meta = CheckpointMeta {
+            config: config.clone(),
+            dataset_manifest_sha256: data.manifest_sha256.clone(),
+            dataset: data.dir.display().to_string(),
+            epoch: m.epoch,
+            step: adam.step,
+            best_val_loss: best.0,
+            best_epoch: best.1,
+            metrics: Some(m.clone()),
+        };
+        // Metrics first, then the checkpoint: a resume trims metrics to the
+        // checkpoint's epoch, so a kill in between loses nothing.
+        append_metrics(&metrics_path, &m)?;
+        if improved {
+            save_checkpoint(run, layout::BEST, &t.varmap, None, &meta)?;
+        }
+        save_checkpoint(run, layout::LAST, &t.varmap, Some(&adam), &meta)?;
+        progress.epoch(&m);
+        history.push(m);
+    }
+    Ok(Outcome { model: t, history })
+}
+
+/// What [`train`] returns.
+pub struct Outcome {
+    /// The model after the last epoch (as saved in `last`).
+    pub model: Trained,
+    /// Metrics of every epoch, resumed ones included.
+    pub history: Vec<EpochMetrics>,
+}
+
+fn append_metrics(path: &Path, m: &EpochMetrics) -> Result<(), TrainError> {
+    let mut f = std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(path)
+        .map_err(|e| io_err(path, e))?;
+    let line = serde_json::to_string(m).map_err(|e| io_err(path, e))?;
+    writeln!(f, "{line}").map_err(|e| io_err(path, e))?;
+    f.sync_all().map_err(|e| io_err(path, e))
+}
+
+fn rewrite_metrics(path: &Path, history: &[EpochMetrics]) -> Result<(), TrainError> {
+    let mut text = String::new();
+    for m in history {
+        text.push_str(&serde_json::to_string(m).map_err(|e| io_err(path, e))?);
+        text.push('\n');
+    }
+    let tmp = path.with_extension("jsonl.tmp");
+    std::fs::write(&tmp, text).map_err(|e| io_err(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| io_err(path, e))
+}

@@ -1,0 +1,133 @@
+//! End to end: a dataset from a few real CMU files, a few training steps, a
+//! checkpoint that reloads to the same loss; the NaN guard.
+
+use integration_tests::{bvh_zip, read_entry};
+use mocap_ingest::dataset::{build_dataset, DatasetOptions, NoProgress};
+use mocap_ingest::source::Source;
+use motion_vrnn::data::load;
+use motion_vrnn::train::{layout, load_model, noise, train, Quiet, TrainConfig, TrainError};
+use std::path::Path;
+
+fn small_dataset(dir: &Path) -> std::path::PathBuf {
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    for t in ["02_01", "02_02", "02_03", "02_04", "02_05", "02_06"] {
+        let name = format!("cmu-bvh-motionbuilder/02/{t}.bvh");
+        std::fs::write(src.join(format!("{t}.bvh")), read_entry(&bvh_zip(), &name)).unwrap();
+    }
+    let out = dir.join("ds");
+    let opts = DatasetOptions {
+        window: 32,
+        stride: 16,
+        fractions: [0.5, 0.5, 0.0],
+        ..Default::default()
+    };
+    build_dataset(
+        &[Source::open(&src).unwrap()],
+        &["src".into()],
+        &out,
+        &opts,
+        &NoProgress,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    out
+}
+
+fn tiny_config() -> TrainConfig {
+    TrainConfig {
+        batch: 8,
+        epochs: 2,
+        ..TrainConfig::quick()
+    }
+}
+
+#[test]
+fn train_checkpoint_reload_gives_the_same_loss() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = small_dataset(tmp.path());
+    let data = load(&ds, &["train", "val"]).unwrap();
+    let tr = &data.splits["train"];
+    assert!(tr.n >= 8, "{} train windows", tr.n);
+    let run = tmp.path().join("run");
+    let dev = candle_core::Device::Cpu;
+    let out = train(&data, &tiny_config(), &run, false, &dev, &Quiet).unwrap();
+    assert_eq!(out.history.len(), 2);
+    assert!(out
+        .history
+        .iter()
+        .all(|m| m.train_recon.is_finite() && m.val_kl.is_finite()));
+    for f in [layout::MODEL, layout::OPTIMIZER, layout::META] {
+        assert!(run.join(layout::LAST).join(f).is_file(), "{f}");
+    }
+    assert!(run.join(layout::BEST).join(layout::MODEL).is_file());
+    assert_eq!(
+        std::fs::read_to_string(run.join(layout::METRICS))
+            .unwrap()
+            .lines()
+            .count(),
+        2
+    );
+
+    let (reloaded, meta) = load_model(&run.join(layout::LAST), &dev).unwrap();
+    assert_eq!(meta.epoch, 2);
+    assert_eq!(meta.dataset_manifest_sha256, data.manifest_sha256);
+    let idx: Vec<usize> = (0..8).collect();
+    let x = tr.batch(&idx, &dev).unwrap();
+    let eps = noise(42, 0, tr.length, 8, 8, &dev).unwrap();
+    let a = out.model.model.forward(&x, &eps).unwrap();
+    let b = reloaded.model.forward(&x, &eps).unwrap();
+    let s = |t: &candle_core::Tensor| t.to_scalar::<f32>().unwrap();
+    assert_eq!(s(&a.recon), s(&b.recon));
+    assert_eq!(s(&a.kl), s(&b.kl));
+
+    // A second run into the same directory must ask for --resume.
+    let err = train(&data, &tiny_config(), &run, false, &dev, &Quiet)
+        .err()
+        .unwrap();
+    assert!(err.to_string().contains("--resume"), "{err}");
+}
+
+#[test]
+fn a_non_finite_loss_stops_with_the_step_and_keeps_the_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = small_dataset(tmp.path());
+    let mut data = load(&ds, &["train", "val"]).unwrap();
+    let run = tmp.path().join("run");
+    let dev = candle_core::Device::Cpu;
+    let cfg = TrainConfig {
+        epochs: 1,
+        ..tiny_config()
+    };
+    train(&data, &cfg, &run, false, &dev, &Quiet).unwrap();
+    let before = std::fs::read(run.join(layout::LAST).join(layout::MODEL)).unwrap();
+    let steps = motion_vrnn::train::read_meta(&run.join(layout::LAST))
+        .unwrap()
+        .step;
+    // Poison the data, then resume for one more epoch: its first step stops.
+    let w = data.splits.get_mut("train").unwrap();
+    w.data.iter_mut().for_each(|v| *v = f32::NAN);
+    let cfg2 = TrainConfig {
+        epochs: 2,
+        ..tiny_config()
+    };
+    let err = train(&data, &cfg2, &run, true, &dev, &Quiet).err().unwrap();
+    match &err {
+        TrainError::NonFinite { step, epoch, .. } => assert_eq!((*step, *epoch), (steps + 1, 2)),
+        other => panic!("{other}"),
+    }
+    assert!(
+        err.to_string().contains(&format!("step {}", steps + 1)),
+        "{err}"
+    );
+    // The last good checkpoint is untouched.
+    assert_eq!(
+        std::fs::read(run.join(layout::LAST).join(layout::MODEL)).unwrap(),
+        before
+    );
+    assert_eq!(
+        motion_vrnn::train::read_meta(&run.join(layout::LAST))
+            .unwrap()
+            .epoch,
+        1
+    );
+}

@@ -1,0 +1,188 @@
+//! `cargo xtask train`.
+
+use crate::plot::{line_plot, Series};
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use motion_vrnn::train::{layout, train, EpochMetrics, TrainConfig, TrainProgress};
+use std::path::{Path, PathBuf};
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Preset {
+    /// Batch 64, 30 epochs, KL warm-up 5, clipping 100, early stopping 10.
+    Quick,
+    /// Exactly the paper: Adam 1e-3, batch 1,600, 2,000 epochs, nothing else.
+    Paper,
+}
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Dataset directory written by `cargo xtask dataset`.
+    #[arg(long, default_value = "data/datasets/cmu")]
+    data: PathBuf,
+    /// Run directory (checkpoints, metrics, loss curve).
+    #[arg(long, default_value = "runs/vrnn")]
+    out: PathBuf,
+    /// Starting point for every option below.
+    #[arg(long, value_enum, default_value_t = Preset::Quick)]
+    preset: Preset,
+    /// Epochs.
+    #[arg(long)]
+    epochs: Option<usize>,
+    /// Windows per step.
+    #[arg(long)]
+    batch: Option<usize>,
+    /// Adam learning rate.
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Seed of initialisation, shuffling and noise.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// KL warm-up epochs (0: off).
+    #[arg(long)]
+    kl_warmup: Option<usize>,
+    /// Clip the global gradient norm (0: off).
+    #[arg(long)]
+    clip: Option<f64>,
+    /// Early-stopping patience in epochs (0: off).
+    #[arg(long)]
+    early_stopping: Option<usize>,
+    /// Continue the run in --out from its `last` checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+struct Bar(ProgressBar);
+
+impl TrainProgress for Bar {
+    fn step(&self, epoch: usize, step: u64, recon: f32, kl: f32, wps: f64) {
+        self.0.set_message(format!(
+            "epoch {epoch} step {step} recon {recon:.2} kl {kl:.2} {wps:.0} windows/s"
+        ));
+    }
+    fn epoch(&self, m: &EpochMetrics) {
+        self.0.set_position(m.epoch as u64);
+        self.0.println(format!(
+            "epoch {:>4}  train recon {:>9.3} kl {:>7.3}  val recon {:>9.3} kl {:>7.3}  {:>6.0} windows/s  {:.1} s",
+            m.epoch, m.train_recon, m.train_kl, m.val_recon, m.val_kl, m.windows_per_s, m.seconds
+        ));
+    }
+}
+
+pub fn run(a: TrainArgs) -> Result<()> {
+    let mut cfg = match a.preset {
+        Preset::Quick => TrainConfig::quick(),
+        Preset::Paper => TrainConfig::paper(),
+    };
+    if let Some(v) = a.epochs {
+        cfg.epochs = v;
+    }
+    if let Some(v) = a.batch {
+        cfg.batch = v;
+    }
+    if let Some(v) = a.lr {
+        cfg.adam.lr = v;
+    }
+    if let Some(v) = a.seed {
+        cfg.seed = v;
+    }
+    if let Some(v) = a.kl_warmup {
+        cfg.kl_warmup_epochs = v;
+    }
+    if let Some(v) = a.clip {
+        cfg.clip_grad_norm = (v > 0.0).then_some(v);
+    }
+    if let Some(v) = a.early_stopping {
+        cfg.early_stopping = (v > 0).then_some(v);
+    }
+    let device = motion_vrnn::model::default_device();
+    let data = motion_vrnn::data::load(&a.data, &["train", "val"]).with_context(|| {
+        format!(
+            "loading the dataset {} (build it with `cargo xtask dataset`)",
+            a.data.display()
+        )
+    })?;
+    let n = |s: &str| data.splits.get(s).map_or(0, |w| w.n);
+    if !a.quiet {
+        eprintln!(
+            "training on {} train / {} val windows from {} on {:?}; batch {}, {} epochs, lr {}",
+            n("train"),
+            n("val"),
+            a.data.display(),
+            device,
+            cfg.batch,
+            cfg.epochs,
+            cfg.adam.lr
+        );
+    }
+    let bar = if a.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(cfg.epochs as u64)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("[{elapsed_precise}] {bar:30} {pos}/{len} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let started = std::time::Instant::now();
+    let history = train(&data, &cfg, &a.out, a.resume, &device, &Bar(bar.clone()))
+        .with_context(|| format!("training into {}", a.out.display()))?
+        .history;
+    bar.finish_and_clear();
+    let png = a.out.join("loss.png");
+    plot_history(&png, &history)?;
+    if let Some(last) = history.last() {
+        println!(
+            "done: {} epochs in {:.1} s; last epoch: train recon {:.3} kl {:.3}, val recon {:.3} kl {:.3}; {:.0} windows/s ({:.0} frames/s)",
+            last.epoch,
+            started.elapsed().as_secs_f64(),
+            last.train_recon,
+            last.train_kl,
+            last.val_recon,
+            last.val_kl,
+            last.windows_per_s,
+            last.windows_per_s * data.splits.get("train").map_or(0, |w| w.length) as f64
+        );
+    }
+    println!(
+        "checkpoints: {}/{{{},{}}}; metrics: {}; loss curve: {}",
+        a.out.display(),
+        layout::BEST,
+        layout::LAST,
+        a.out.join(layout::METRICS).display(),
+        png.display()
+    );
+    Ok(())
+}
+
+/// The loss curves (recon + KL per window, train and validation) as a PNG.
+pub fn plot_history(path: &Path, history: &[EpochMetrics]) -> Result<()> {
+    let pts =
+        |f: fn(&EpochMetrics) -> f64| history.iter().map(|m| (m.epoch as f64, f(m))).collect();
+    line_plot(
+        path,
+        "VRNN loss per window (recon + KL)",
+        "epoch",
+        "loss",
+        &[
+            Series {
+                name: "train",
+                color: [31, 119, 180],
+                points: pts(|m| m.train_recon + m.train_kl),
+            },
+            Series {
+                name: "val",
+                color: [255, 127, 14],
+                points: pts(|m| m.val_recon + m.val_kl),
+            },
+            Series {
+                name: "val kl",
+                color: [44, 160, 44],
+                points: pts(|m| m.val_kl),
+            },
+        ],
+    )
+}

@@ -1,0 +1,127 @@
+//! A training run killed with SIGKILL and resumed ends exactly where an
+//! uninterrupted run with the same seed ends.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+const EPOCHS: &str = "15";
+
+fn xtask() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_xtask"))
+}
+
+fn dataset(tmp: &Path) -> PathBuf {
+    let zip = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/cmu/cmu-bvh-sample.zip");
+    assert!(zip.is_file(), "this test needs {}", zip.display());
+    let src = tmp.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    let source = mocap_ingest::source::Source::open(&zip).unwrap();
+    let mut r = source.reader().unwrap();
+    for t in ["02_01", "02_02", "02_03", "02_04", "02_05", "02_06"] {
+        let bytes = r
+            .read(&format!("cmu-bvh-motionbuilder/02/{t}.bvh"))
+            .unwrap();
+        std::fs::write(src.join(format!("{t}.bvh")), bytes).unwrap();
+    }
+    let ds = tmp.join("ds");
+    let ok = xtask()
+        .args([
+            "dataset",
+            "--quiet",
+            "--window",
+            "32",
+            "--stride",
+            "16",
+            "--split",
+            "0.5,0.5,0",
+            "--source",
+        ])
+        .arg(&src)
+        .arg("--out")
+        .arg(&ds)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    ds
+}
+
+fn train_cmd(ds: &Path, out: &Path) -> Command {
+    let mut c = xtask();
+    c.args([
+        "train",
+        "--quiet",
+        "--batch",
+        "8",
+        "--epochs",
+        EPOCHS,
+        "--early-stopping",
+        "0",
+        "--seed",
+        "11",
+        "--data",
+    ])
+    .arg(ds)
+    .arg("--out")
+    .arg(out);
+    c
+}
+
+fn epoch_of(run: &Path) -> usize {
+    std::fs::read_to_string(run.join("last/checkpoint.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["epoch"].as_u64())
+        .unwrap_or(0) as usize
+}
+
+/// Metrics without the timing fields.
+fn metrics(run: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(run.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+            let o = v.as_object_mut().unwrap();
+            o.remove("seconds");
+            o.remove("windows_per_s");
+            v
+        })
+        .collect()
+}
+
+#[test]
+fn sigkill_and_resume_reaches_the_uninterrupted_result() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = dataset(tmp.path());
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    assert!(train_cmd(&ds, &a).status().unwrap().success());
+
+    let mut child = train_cmd(&ds, &b).spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while epoch_of(&b) < 3 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let killed_at = epoch_of(&b);
+    assert!((3..15).contains(&killed_at), "killed at epoch {killed_at}");
+
+    let mut resume = train_cmd(&ds, &b);
+    resume.arg("--resume");
+    assert!(resume.status().unwrap().success());
+
+    assert_eq!(epoch_of(&b), 15);
+    assert_eq!(metrics(&a), metrics(&b), "metrics differ");
+    for f in [
+        "last/model.safetensors",
+        "last/optimizer.safetensors",
+        "best/model.safetensors",
+    ] {
+        assert!(
+            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
+            "{f} differs after resume"
+        );
+    }
+    assert!(b.join("loss.png").is_file());
+}
