@@ -30,6 +30,15 @@ enum Command {
     Dataset(dataset::DatasetArgs),
     /// Train the paper's VRNN on a dataset (checkpoints, metrics, loss curve).
     Train(train::TrainArgs),
+    /// Benchmark a training step at given batch sizes, and sampling.
+    BenchTrain {
+        /// Batch sizes.
+        #[arg(long, value_delimiter = ',', default_values_t = [1600, 64])]
+        batch: Vec<usize>,
+        /// Timed steps per batch size (after 2 warm-up steps).
+        #[arg(long, default_value_t = 5)]
+        steps: usize,
+    },
     /// Benchmark `dataset` end to end on the CMU samples, 1 thread and all
     /// cores, each in a fresh process (reports peak RSS).
     BenchDataset {
@@ -64,6 +73,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
+        Command::BenchTrain { batch, steps } => train::bench(&batch, steps.max(1)),
         Command::BenchDataset { sources, repeat } => dataset::bench(sources, repeat),
         Command::BenchIngest { sources, repeat } => bench_ingest(sources, repeat),
         Command::Inspect {

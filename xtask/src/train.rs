@@ -55,7 +55,8 @@ pub struct TrainArgs {
     quiet: bool,
 }
 
-struct Bar(ProgressBar);
+/// The progress bar, and whether `--quiet` was given.
+struct Bar(ProgressBar, bool);
 
 impl TrainProgress for Bar {
     fn step(&self, epoch: usize, step: u64, recon: f32, kl: f32, wps: f64) {
@@ -65,10 +66,18 @@ impl TrainProgress for Bar {
     }
     fn epoch(&self, m: &EpochMetrics) {
         self.0.set_position(m.epoch as u64);
-        self.0.println(format!(
+        let line = format!(
             "epoch {:>4}  train recon {:>9.3} kl {:>7.3}  val recon {:>9.3} kl {:>7.3}  {:>6.0} windows/s  {:.1} s",
             m.epoch, m.train_recon, m.train_kl, m.val_recon, m.val_kl, m.windows_per_s, m.seconds
-        ));
+        );
+        // A hidden bar (no terminal) prints nothing: keep the log readable.
+        if self.0.is_hidden() {
+            if !self.1 {
+                eprintln!("{line}");
+            }
+        } else {
+            self.0.println(line);
+        }
     }
 }
 
@@ -128,9 +137,16 @@ pub fn run(a: TrainArgs) -> Result<()> {
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let started = std::time::Instant::now();
-    let history = train(&data, &cfg, &a.out, a.resume, &device, &Bar(bar.clone()))
-        .with_context(|| format!("training into {}", a.out.display()))?
-        .history;
+    let history = train(
+        &data,
+        &cfg,
+        &a.out,
+        a.resume,
+        &device,
+        &Bar(bar.clone(), a.quiet),
+    )
+    .with_context(|| format!("training into {}", a.out.display()))?
+    .history;
     bar.finish_and_clear();
     let png = a.out.join("loss.png");
     plot_history(&png, &history)?;
@@ -185,4 +201,63 @@ pub fn plot_history(path: &Path, history: &[EpochMetrics]) -> Result<()> {
             },
         ],
     )
+}
+
+/// `cargo xtask bench-train`: seconds per training step (forward, backward,
+/// Adam) of the paper's model on random windows, and the sampling time.
+pub fn bench(batches: &[usize], steps: usize) -> Result<()> {
+    use motion_vrnn::optim::Adam;
+    use motion_vrnn::train::{init_model, named_vars, noise};
+    let device = motion_vrnn::model::default_device();
+    let cfg = TrainConfig::paper();
+    let t = 128;
+    println!("training step of the paper's VRNN (T = {t}, forward + backward + Adam) on {device:?}, after 2 warm-up steps");
+    println!(
+        "{:>6} {:>6} {:>10} {:>10} {:>16}",
+        "batch", "steps", "median s", "min s", "windows*frames/s"
+    );
+    for &b in batches {
+        let m = init_model(&cfg.model, 0, &device)?;
+        let mut adam = Adam::new(named_vars(&m.varmap), cfg.adam)?;
+        let x = candle_core::Tensor::from_vec(
+            motion_vrnn::rng::Rng::new(1, b as u64).normals(b * t * cfg.model.input),
+            (b, t, cfg.model.input),
+            &device,
+        )?;
+        let mut times = Vec::new();
+        for step in 0..steps + 2 {
+            let eps = noise(0, step as u64, t, b, cfg.model.latent, &device)?;
+            let start = std::time::Instant::now();
+            let l = m.model.forward(&x, &eps)?;
+            let loss = (&l.recon + &l.kl)?;
+            let grads = loss.backward()?;
+            adam.step(&grads)?;
+            let _ = loss.to_scalar::<f32>()?;
+            if step >= 2 {
+                times.push(start.elapsed().as_secs_f64());
+            }
+        }
+        times.sort_by(f64::total_cmp);
+        let median = times[times.len() / 2];
+        println!(
+            "{b:>6} {steps:>6} {median:>10.4} {:>10.4} {:>16.0}",
+            times[0],
+            (b * t) as f64 / median
+        );
+    }
+    let m = init_model(&cfg.model, 0, &device)?;
+    let mut times = Vec::new();
+    for k in 0..7 {
+        let eps = noise(5, k, t, 36, cfg.model.latent, &device)?;
+        let start = std::time::Instant::now();
+        let s = m.model.sample(&eps)?;
+        let _ = s.sum_all()?.to_scalar::<f32>()?;
+        times.push(start.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    println!(
+        "sampling 36 motions x {t} frames: median {:.4} s, min {:.4} s",
+        times[3], times[0]
+    );
+    Ok(())
 }
