@@ -1,6 +1,6 @@
 //! `cargo xtask dataset` and `cargo xtask bench-dataset`.
 
-use crate::{fetch, shared_samples, workspace_root};
+use crate::{fetch, file_name, shared_samples, workspace_root};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -283,10 +283,7 @@ pub fn bench(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
             let Some((secs, frames, bytes, rss)) = best else {
                 continue;
             };
-            let name = src.file_name().map_or_else(
-                || src.display().to_string(),
-                |n| n.to_string_lossy().into_owned(),
-            );
+            let name = file_name(src);
             println!(
                 "{:<28} {:>7} {:>9.1} {:>10} {:>8.3} {:>8.1} {:>12.0} {:>6.0} MiB",
                 name,

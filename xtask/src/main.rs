@@ -91,6 +91,14 @@ pub(crate) fn workspace_root() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("."))
 }
 
+/// The last component of a path, for tables.
+pub(crate) fn file_name(path: &Path) -> String {
+    path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
+}
+
 /// The shared CMU samples beside the repository.
 pub(crate) fn shared_samples() -> Result<Vec<PathBuf>> {
     let dir = workspace_root().join("../shared/cmu");
@@ -179,10 +187,7 @@ fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
                 }
             }
             let Some(t) = best else { continue };
-            let name = path.file_name().map_or_else(
-                || path.display().to_string(),
-                |n| n.to_string_lossy().into_owned(),
-            );
+            let name = file_name(path);
             println!(
                 "{:<28} {:>7} {:>6} {:>9.1} {:>10} {:>8.3} {:>9.1} {:>13.0}",
                 name,

@@ -30,6 +30,18 @@ fn read_err(path: &Path, e: impl std::fmt::Display) -> DataError {
     }
 }
 
+/// A typed column of a data frame read from `path`.
+fn column<T>(
+    df: &DataFrame,
+    name: &str,
+    path: &Path,
+    typed: impl Fn(&Column) -> PolarsResult<T>,
+) -> Result<T, DataError> {
+    df.column(name)
+        .and_then(typed)
+        .map_err(|e| read_err(path, e))
+}
+
 /// Normalisation statistics (`stats.json`).
 #[derive(Clone, Debug, Deserialize)]
 pub struct Stats {
@@ -129,14 +141,8 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
         .map_err(|e| read_err(&fpath, e))?;
 
     // Row offset of each take's frame 0 (frames are stored by take, then frame).
-    let takes = frames
-        .column("take")
-        .and_then(|c| c.str().cloned())
-        .map_err(|e| read_err(&fpath, e))?;
-    let frame_idx = frames
-        .column("frame")
-        .and_then(|c| c.u32().cloned())
-        .map_err(|e| read_err(&fpath, e))?;
+    let takes = column(&frames, "take", &fpath, |c| c.str().cloned())?;
+    let frame_idx = column(&frames, "frame", &fpath, |c| c.u32().cloned())?;
     let mut offsets: HashMap<String, (usize, usize)> = HashMap::new();
     for (row, (t, f)) in takes.iter().zip(frame_idx.iter()).enumerate() {
         let (Some(t), Some(f)) = (t, f) else {
@@ -157,30 +163,15 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
     let nf = stats.features.len();
     let mut cols: Vec<Vec<f32>> = Vec::with_capacity(nf);
     for (i, name) in stats.features.iter().enumerate() {
-        let c = frames
-            .column(name)
-            .and_then(|c| c.f32().cloned())
-            .map_err(|e| read_err(&fpath, e))?;
+        let c = column(&frames, name, &fpath, |c| c.f32().cloned())?;
         let (m, s) = (stats.mean[i] as f32, stats.std[i] as f32);
         cols.push(c.iter().map(|v| (v.unwrap_or(f32::NAN) - m) / s).collect());
     }
 
-    let wt = windows
-        .column("take")
-        .and_then(|c| c.str().cloned())
-        .map_err(|e| read_err(&wpath, e))?;
-    let ws = windows
-        .column("start")
-        .and_then(|c| c.u32().cloned())
-        .map_err(|e| read_err(&wpath, e))?;
-    let wl = windows
-        .column("length")
-        .and_then(|c| c.u32().cloned())
-        .map_err(|e| read_err(&wpath, e))?;
-    let wsplit = windows
-        .column("split")
-        .and_then(|c| c.str().cloned())
-        .map_err(|e| read_err(&wpath, e))?;
+    let wt = column(&windows, "take", &wpath, |c| c.str().cloned())?;
+    let ws = column(&windows, "start", &wpath, |c| c.u32().cloned())?;
+    let wl = column(&windows, "length", &wpath, |c| c.u32().cloned())?;
+    let wsplit = column(&windows, "split", &wpath, |c| c.str().cloned())?;
     let mut out: HashMap<String, Windows> = HashMap::new();
     for i in 0..windows.height() {
         let (Some(take), Some(start), Some(len), Some(split)) =
