@@ -3,6 +3,7 @@
 //! A thin binary over the library crates: argument parsing, progress and
 //! reports live here; the work lives in the crates.
 
+mod audit;
 mod dataset;
 mod fetch;
 mod plot;
@@ -28,6 +29,8 @@ enum Command {
     /// Build the training dataset: CMU files → Parquet frames, windows,
     /// split, normalisation statistics and manifest.
     Dataset(dataset::DatasetArgs),
+    /// Check a dataset: integrity, reproducibility, split hygiene, statistics, data quality.
+    Audit(audit::AuditArgs),
     /// Train the paper's VRNN on a dataset (checkpoints, metrics, loss curve).
     Train(train::TrainArgs),
     /// Benchmark a training step at given batch sizes, and sampling.
@@ -73,6 +76,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
+        Command::Audit(args) => audit::run(args),
         Command::BenchTrain { batch, steps } => train::bench(&batch, steps.max(1)),
         Command::BenchDataset { sources, repeat } => dataset::bench(sources, repeat),
         Command::BenchIngest { sources, repeat } => bench_ingest(sources, repeat),

@@ -81,6 +81,8 @@ fn glyph(c: char) -> [u8; 7] {
         '8' => [14, 17, 17, 14, 17, 17, 14],
         '9' => [14, 17, 17, 15, 1, 2, 12],
         '.' => [0, 0, 0, 0, 0, 12, 12],
+        ',' => [0, 0, 0, 0, 12, 4, 8],
+        '%' => [24, 25, 2, 4, 8, 19, 3],
         '-' => [0, 0, 0, 31, 0, 0, 0],
         '+' => [0, 4, 4, 31, 4, 4, 0],
         ' ' => [0; 7],
@@ -208,7 +210,7 @@ pub fn line_plot(
     cv.text(4, 24, ylabel, black);
     for (i, s) in series.iter().enumerate() {
         let y = top as i64 + 10 + 14 * i as i64;
-        let x = (left + pw) as i64 - 150;
+        let x = (left + pw) as i64 - 26 - 6 * s.name.len() as i64 - 10;
         cv.line(
             (x as f64, y as f64 + 3.0),
             (x as f64 + 20.0, y as f64 + 3.0),
@@ -228,4 +230,61 @@ pub fn line_plot(
     wr.finish()?;
     std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
     Ok(())
+}
+
+/// Render a histogram of `values` (non-finite ones are ignored) into a PNG.
+pub fn histogram(
+    path: &Path,
+    title: &str,
+    xlabel: &str,
+    values: &[f64],
+    bins: usize,
+) -> Result<()> {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    v.sort_by(f64::total_cmp);
+    // Range: minimum to the 99.5th percentile, so a few outliers do not
+    // flatten the rest; values above go into the last bin (and the legend).
+    let lo = v.first().copied().unwrap_or(0.0);
+    let hi = v
+        .get((v.len() as f64 * 0.995) as usize)
+        .or(v.last())
+        .copied()
+        .unwrap_or(1.0);
+    let (lo, hi) = if hi > lo { (lo, hi) } else { (lo, lo + 1.0) };
+    let above = v.iter().filter(|&&x| x > hi).count();
+    let bins = bins.max(1);
+    let mut counts = vec![0usize; bins];
+    for x in &v {
+        let k = (((x - lo) / (hi - lo)) * bins as f64) as usize;
+        counts[k.min(bins - 1)] += 1;
+    }
+    // Draw each bin as a step outline: left edge, top, right edge.
+    let width = (hi - lo) / bins as f64;
+    let mut points = vec![(lo, 0.0)];
+    for (k, &c) in counts.iter().enumerate() {
+        let x0 = lo + k as f64 * width;
+        points.push((x0, c as f64));
+        points.push((x0 + width, c as f64));
+    }
+    points.push((hi, 0.0));
+    let label = if above > 0 {
+        format!(
+            "{} values, {above} above {} in last bin",
+            v.len(),
+            tick_label(hi)
+        )
+    } else {
+        format!("{} values", v.len())
+    };
+    line_plot(
+        path,
+        title,
+        xlabel,
+        "count",
+        &[Series {
+            name: &label,
+            color: [31, 119, 180],
+            points,
+        }],
+    )
 }

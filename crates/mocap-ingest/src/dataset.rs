@@ -224,7 +224,7 @@ struct Done {
 type Readers = Vec<Option<crate::source::SourceReader>>;
 
 fn run_job(job: &Job, readers: &mut Readers, opts: &Options) -> Done {
-    let display = job.source.display_name(&job.take.motion.name);
+    let display = job.source.portable_name(&job.take.motion.name);
     let mut inputs = Vec::new();
     let reader = &mut readers[job.source_index];
     let result = (|| {
@@ -246,7 +246,7 @@ fn run_job(job: &Job, readers: &mut Readers, opts: &Options) -> Done {
             }
         };
         let mut read = |name: &str| {
-            let shown = job.source.display_name(name);
+            let shown = job.source.portable_name(name);
             let bytes = reader
                 .read(name)
                 .map_err(|e| IngestError::new(&shown, crate::ErrorKind::Io(e)))?;
@@ -270,7 +270,7 @@ fn run_job(job: &Job, readers: &mut Readers, opts: &Options) -> Done {
                     ));
                 };
                 let asf_bytes = read(&asf.name)?;
-                let asf_shown = job.source.display_name(&asf.name);
+                let asf_shown = job.source.portable_name(&asf.name);
                 read_amc(&display, &bytes, &asf_shown, &asf_bytes, opts.asf)?
             }
         };
@@ -430,12 +430,12 @@ pub fn build_dataset(
         (
             &a.take.take_id,
             std::cmp::Reverse(a.take.format),
-            a.source.display_name(&a.take.motion.name),
+            a.source.portable_name(&a.take.motion.name),
         )
             .cmp(&(
                 &b.take.take_id,
                 std::cmp::Reverse(b.take.format),
-                b.source.display_name(&b.take.motion.name),
+                b.source.portable_name(&b.take.motion.name),
             ))
     });
     let mut summary = BuildSummary {
@@ -446,12 +446,12 @@ pub fn build_dataset(
     for j in jobs {
         if let Some(prev) = unique.last() {
             if prev.take.take_id == j.take.take_id {
-                let file = j.source.display_name(&j.take.motion.name);
+                let file = j.source.portable_name(&j.take.motion.name);
                 summary.skipped.push(Skipped {
                     message: format!(
                         "{file}: duplicate take {}, already read from {}",
                         j.take.take_id,
-                        prev.source.display_name(&prev.take.motion.name)
+                        prev.source.portable_name(&prev.take.motion.name)
                     ),
                     file,
                     code: "duplicate_take".into(),

@@ -214,6 +214,22 @@ impl Source {
         }
     }
 
+    /// A name independent of where the collection lives:
+    /// `archive.zip!/entry` or `folder/entry` (the collection's own name,
+    /// then the entry). Datasets record these, so rebuilding from a copy
+    /// elsewhere gives the same bytes.
+    pub fn portable_name(&self, name: &str) -> String {
+        let root = self
+            .root
+            .file_name()
+            .map_or_else(|| ".".into(), |n| n.to_string_lossy().into_owned());
+        if self.is_zip {
+            format!("{root}!/{name}")
+        } else {
+            format!("{root}/{name}")
+        }
+    }
+
     fn open_zip(&self) -> Result<zip::ZipArchive<File>, SourceError> {
         let f = File::open(&self.root).map_err(|e| SourceError::Io {
             path: self.root.clone(),

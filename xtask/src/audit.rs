@@ -1,0 +1,139 @@
+//! `cargo xtask audit`.
+
+use crate::plot::histogram;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use dataset_audit::{audit, Report, Thresholds};
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct AuditArgs {
+    /// Dataset directory written by `cargo xtask dataset`.
+    #[arg(long, default_value = "data/datasets/cmu")]
+    data: PathBuf,
+    /// Rebuild from these sources (as given to `dataset`) and prove the bytes match.
+    #[arg(long = "source")]
+    sources: Vec<PathBuf>,
+    /// Where to write audit.md, audit.json and the histograms (default: DATA-audit beside the dataset).
+    #[arg(long)]
+    report: Option<PathBuf>,
+}
+
+pub fn run(a: AuditArgs) -> Result<()> {
+    let started = std::time::Instant::now();
+    let report = audit(&a.data, &a.sources, Thresholds::default())?;
+    let out = a.report.clone().unwrap_or_else(|| {
+        let mut p = a.data.clone().into_os_string();
+        p.push("-audit");
+        PathBuf::from(p)
+    });
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let seconds = started.elapsed().as_secs_f64();
+    let md = markdown(&report, seconds);
+    std::fs::write(out.join("audit.md"), &md).context("writing audit.md")?;
+    let json = serde_json::to_string_pretty(
+        &serde_json::json!({ "ok": report.ok(), "seconds": seconds, "report": report }),
+    )?;
+    std::fs::write(out.join("audit.json"), json + "\n").context("writing audit.json")?;
+    if !report.takes.is_empty() {
+        let durations: Vec<f64> = report.takes.iter().map(|t| t.seconds).collect();
+        let cv: Vec<f64> = report.takes.iter().map(|t| 100.0 * t.bone_cv).collect();
+        histogram(
+            &out.join("take_duration.png"),
+            "take duration",
+            "seconds",
+            &durations,
+            30,
+        )?;
+        histogram(
+            &out.join("root_speed.png"),
+            "horizontal root speed per frame",
+            "m/s",
+            &report.speeds,
+            40,
+        )?;
+        histogram(
+            &out.join("bone_length_variation.png"),
+            "largest bone-length variation per take",
+            "percent of length",
+            &cv,
+            30,
+        )?;
+        histogram(
+            &out.join("foot_height.png"),
+            "height of the lower toe per frame",
+            "units above the floor",
+            &report.toe_heights,
+            40,
+        )?;
+    }
+    print!("{md}");
+    println!("\nreport: {}", out.display());
+    if !report.ok() {
+        bail!(
+            "audit failed: {} of {} checks failed",
+            report.checks.iter().filter(|c| !c.ok).count(),
+            report.checks.len()
+        );
+    }
+    Ok(())
+}
+
+fn markdown(r: &Report, seconds: f64) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# Audit of `{}`\n", r.dir);
+    let _ = writeln!(
+        s,
+        "{} ({} checks, {:.2} s)\n",
+        if r.ok() { "**PASS**" } else { "**FAIL**" },
+        r.checks.len(),
+        seconds
+    );
+    let _ = writeln!(
+        s,
+        "| section | check | result | detail |\n|---|---|---|---|"
+    );
+    for c in &r.checks {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} |",
+            c.section,
+            c.name,
+            if c.ok { "ok" } else { "**FAIL**" },
+            c.detail.replace('|', "/")
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nFeatures whose std hit the floor: {}\n",
+        if r.floored_features.is_empty() {
+            "none".into()
+        } else {
+            r.floored_features.join(", ")
+        }
+    );
+    let flagged: Vec<_> = r.takes.iter().filter(|t| !t.flags.is_empty()).collect();
+    let th = &r.thresholds;
+    let _ = writeln!(
+        s,
+        "## Data quality\n\n{} takes, {} flagged (mean root speed > {} m/s, any frame > {} m/s, bone length std > {}% of its length, lowest toe > {} units).\n",
+        r.takes.len(), flagged.len(), th.mean_speed, th.max_speed, 100.0 * th.bone_cv, th.min_toe
+    );
+    let _ = writeln!(s, "| take | seconds | mean speed m/s | max speed m/s | bone var % | lowest toe | flags |\n|---|---|---|---|---|---|---|");
+    for t in &flagged {
+        let _ = writeln!(
+            s,
+            "| {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.2} | {} |",
+            t.take,
+            t.seconds,
+            t.mean_speed,
+            t.max_speed,
+            100.0 * t.bone_cv,
+            t.min_toe,
+            t.flags.join("; ")
+        );
+    }
+    let _ = writeln!(s, "\nHistograms: take_duration.png, root_speed.png, bone_length_variation.png, foot_height.png");
+    s
+}
