@@ -1,50 +1,12 @@
 //! `cargo xtask audit` passes on a fresh dataset (rebuild included) and fails,
 //! naming the problem, on each kind of tampering.
 
+mod common;
+
+use common::{six_takes, small_dataset, xtask};
 use polars::prelude::{NamedFrom, SerReader};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn xtask() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_xtask"))
-}
-
-fn sources(tmp: &Path) -> PathBuf {
-    let zip = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/cmu/cmu-bvh-sample.zip");
-    assert!(zip.is_file(), "this test needs {}", zip.display());
-    let src = tmp.join("src");
-    std::fs::create_dir_all(&src).unwrap();
-    let source = mocap_ingest::source::Source::open(&zip).unwrap();
-    let mut r = source.reader().unwrap();
-    for t in ["02_01", "02_02", "02_03", "02_04", "02_05", "02_06"] {
-        let bytes = r
-            .read(&format!("cmu-bvh-motionbuilder/02/{t}.bvh"))
-            .unwrap();
-        std::fs::write(src.join(format!("{t}.bvh")), bytes).unwrap();
-    }
-    src
-}
-
-fn build(src: &Path, out: &Path) {
-    let ok = xtask()
-        .args([
-            "dataset",
-            "--quiet",
-            "--window",
-            "32",
-            "--stride",
-            "16",
-            "--split",
-            "0.5,0.5,0",
-            "--source",
-        ])
-        .arg(src)
-        .arg("--out")
-        .arg(out)
-        .status()
-        .unwrap();
-    assert!(ok.success());
-}
+use std::path::Path;
+use std::process::Output;
 
 fn audit(data: &Path, src: Option<&Path>, report: &Path) -> Output {
     let mut c = xtask();
@@ -69,9 +31,9 @@ fn text(o: &Output) -> String {
 #[test]
 fn fresh_dataset_passes_and_tampering_fails_by_name() {
     let tmp = tempfile::tempdir().unwrap();
-    let src = sources(tmp.path());
+    let src = six_takes(tmp.path());
     let ds = tmp.path().join("ds");
-    build(&src, &ds);
+    small_dataset(&src, &ds);
     let report = tmp.path().join("report");
 
     let o = audit(&ds, Some(&src), &report);
@@ -94,7 +56,7 @@ fn fresh_dataset_passes_and_tampering_fails_by_name() {
 
     // One value changed in a Parquet file (rewritten with polars: still valid Parquet).
     let bad = tmp.path().join("bad1");
-    build(&src, &bad);
+    small_dataset(&src, &bad);
     let p = bad.join("windows.parquet");
     let mut df = polars::prelude::ParquetReader::new(std::fs::File::open(&p).unwrap())
         .finish()
@@ -123,7 +85,7 @@ fn fresh_dataset_passes_and_tampering_fails_by_name() {
 
     // A file removed.
     let bad = tmp.path().join("bad2");
-    build(&src, &bad);
+    small_dataset(&src, &bad);
     std::fs::remove_file(bad.join("takes.parquet")).unwrap();
     let o = audit(&bad, None, &report);
     assert!(!o.status.success());
@@ -135,7 +97,7 @@ fn fresh_dataset_passes_and_tampering_fails_by_name() {
 
     // A hash edited in the manifest.
     let bad = tmp.path().join("bad3");
-    build(&src, &bad);
+    small_dataset(&src, &bad);
     let m = std::fs::read_to_string(bad.join("manifest.json")).unwrap();
     let v: serde_json::Value = serde_json::from_str(&m).unwrap();
     let h = v["outputs"][0]["sha256"].as_str().unwrap().to_string();

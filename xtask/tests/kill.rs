@@ -1,26 +1,12 @@
 //! A `dataset` run killed with SIGKILL midway leaves the previous dataset
 //! complete and intact; the next run cleans up and succeeds.
 
+mod common;
+
+use common::{shared, xtask};
 use sha2::{Digest, Sha256};
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 use std::time::Duration;
-
-fn shared(name: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/cmu")
-        .join(name);
-    assert!(
-        p.is_file(),
-        "this test needs the CMU sample {}",
-        p.display()
-    );
-    p
-}
-
-fn xtask() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_xtask"))
-}
 
 /// Every output listed in the manifest exists with the listed SHA-256.
 fn assert_complete(dir: &Path) -> serde_json::Value {

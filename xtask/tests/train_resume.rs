@@ -1,48 +1,18 @@
 //! A training run killed with SIGKILL and resumed ends exactly where an
 //! uninterrupted run with the same seed ends.
 
+mod common;
+
+use common::{six_takes, small_dataset, xtask};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 const EPOCHS: &str = "15";
 
-fn xtask() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_xtask"))
-}
-
 fn dataset(tmp: &Path) -> PathBuf {
-    let zip = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/cmu/cmu-bvh-sample.zip");
-    assert!(zip.is_file(), "this test needs {}", zip.display());
-    let src = tmp.join("src");
-    std::fs::create_dir_all(&src).unwrap();
-    let source = mocap_ingest::source::Source::open(&zip).unwrap();
-    let mut r = source.reader().unwrap();
-    for t in ["02_01", "02_02", "02_03", "02_04", "02_05", "02_06"] {
-        let bytes = r
-            .read(&format!("cmu-bvh-motionbuilder/02/{t}.bvh"))
-            .unwrap();
-        std::fs::write(src.join(format!("{t}.bvh")), bytes).unwrap();
-    }
     let ds = tmp.join("ds");
-    let ok = xtask()
-        .args([
-            "dataset",
-            "--quiet",
-            "--window",
-            "32",
-            "--stride",
-            "16",
-            "--split",
-            "0.5,0.5,0",
-            "--source",
-        ])
-        .arg(&src)
-        .arg("--out")
-        .arg(&ds)
-        .status()
-        .unwrap();
-    assert!(ok.success());
+    small_dataset(&six_takes(tmp), &ds);
     ds
 }
 

@@ -168,6 +168,19 @@ fn expected_schema(file: &str) -> Vec<(String, DataType)> {
     }
 }
 
+/// Rows per value of `key` (a string column).
+fn counts_by(lf: &LazyFrame, key: &str) -> PolarsResult<BTreeMap<String, u64>> {
+    let df = lf
+        .clone()
+        .group_by([col(key)])
+        .agg([len().alias("n")])
+        .collect()?;
+    let keys = df.column(key)?.str()?.clone();
+    Ok((0..df.height())
+        .filter_map(|i| Some((keys.get(i)?.to_string(), u64_of(&df, "n", i).unwrap_or(0))))
+        .collect())
+}
+
 fn u64_of(df: &DataFrame, col_name: &str, row: usize) -> Option<u64> {
     df.column(col_name).ok()?.get(row).ok()?.extract::<u64>()
 }
@@ -368,18 +381,7 @@ fn checks_on_tables(dir: &Path, manifest: &serde_json::Value, r: &mut Report) ->
     let counts = &manifest["counts"];
     let n_takes = takes.clone().select([len()]).collect()?;
     let n_frames = frames.clone().select([len()]).collect()?;
-    let per_split = windows
-        .clone()
-        .group_by([col("split")])
-        .agg([len().alias("n")])
-        .collect()?;
-    let mut got_split: BTreeMap<String, u64> = BTreeMap::new();
-    let sc = per_split.column("split")?.str()?.clone();
-    for i in 0..per_split.height() {
-        if let Some(s) = sc.get(i) {
-            got_split.insert(s.to_string(), u64_of(&per_split, "n", i).unwrap_or(0));
-        }
-    }
+    let got_split = counts_by(&windows, "split")?;
     let got_takes = n_takes.columns()[0].get(0)?.extract::<u64>().unwrap_or(0);
     let got_frames = n_frames.columns()[0].get(0)?.extract::<u64>().unwrap_or(0);
     let mut mism = Vec::new();
@@ -452,21 +454,10 @@ fn checks_on_tables(dir: &Path, manifest: &serde_json::Value, r: &mut Report) ->
             format!("{} subjects in several splits", subj.height()),
         );
     }
-    let per_split_takes = takes
-        .clone()
-        .group_by([col("split")])
-        .agg([len().alias("n")])
-        .collect()?;
-    let mut achieved = BTreeMap::new();
-    let sc = per_split_takes.column("split")?.str()?.clone();
-    for i in 0..per_split_takes.height() {
-        if let Some(s) = sc.get(i) {
-            achieved.insert(
-                s.to_string(),
-                u64_of(&per_split_takes, "n", i).unwrap_or(0) as f64 / got_takes.max(1) as f64,
-            );
-        }
-    }
+    let achieved: BTreeMap<String, f64> = counts_by(&takes, "split")?
+        .into_iter()
+        .map(|(k, n)| (k, n as f64 / got_takes.max(1) as f64))
+        .collect();
     let asked = &manifest["options"]["split_fractions"];
     r.check(
         "split",
