@@ -3,7 +3,7 @@
 //! check fails. Data-quality findings are listed per take.
 
 use mocap_ingest::dataset::{
-    build_dataset, sha256_hex, DatasetOptions, NoProgress, SplitBy, SPLITS,
+    build_dataset, sha256_hex, DatasetOptions, NoProgress, SplitBy, Stats, SPLITS,
 };
 use mocap_ingest::features::{feature_names, ANG_VEL_Y, VEL_X, VEL_Z};
 use mocap_ingest::skeleton::{JOINT_NAMES, JOINT_PARENTS, NUM_JOINTS};
@@ -309,13 +309,12 @@ fn checks_on_tables(dir: &Path, manifest: &serde_json::Value, r: &mut Report) ->
         .collect()?;
     let mut bad_total = 0u64;
     let mut bad_cols = Vec::new();
-    for (i, n) in names.iter().enumerate() {
+    for n in &names {
         let v = u64_of(&bad, n, 0).unwrap_or(0);
         if v > 0 {
             bad_cols.push(format!("{n} ({v})"));
         }
         bad_total += v;
-        let _ = i;
     }
     r.check(
         "integrity",
@@ -493,8 +492,22 @@ fn statistics(
     windows: &LazyFrame,
     r: &mut Report,
 ) -> PolarsResult<()> {
-    let text = std::fs::read_to_string(dir.join("stats.json")).unwrap_or_default();
-    let stats: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+    let p = dir.join("stats.json");
+    let parsed = std::fs::read_to_string(&p)
+        .map_err(|e| e.to_string())
+        .and_then(|t| serde_json::from_str::<Stats>(&t).map_err(|e| e.to_string()));
+    let stats = match parsed {
+        Ok(s) => s,
+        Err(e) => {
+            r.check(
+                "statistics",
+                "stats.json readable",
+                false,
+                format!("{}: {e}", p.display()),
+            );
+            return Ok(());
+        }
+    };
     let names = feature_names();
     // Multiplicity of each frame in the train windows: built per take from the
     // windows table, then joined onto the frames table.
@@ -550,8 +563,8 @@ fn statistics(
         let mean = get(&format!("{name}__s1")) / n;
         let var = (get(&format!("{name}__s2")) / n - mean * mean).max(0.0);
         let std = var.sqrt();
-        let smean = stats["mean"][i].as_f64().unwrap_or(f64::NAN);
-        let sstd = stats["std_raw"][i].as_f64().unwrap_or(f64::NAN);
+        let smean = stats.mean.get(i).copied().unwrap_or(f64::NAN);
+        let sstd = stats.std_raw.get(i).copied().unwrap_or(f64::NAN);
         let scale = sstd.max(1e-3);
         for (what, d) in [
             ("mean", (mean - smean).abs() / scale),
@@ -563,24 +576,17 @@ fn statistics(
             }
         }
     }
-    let ok = worst.0 < 1e-3 && n as u64 == stats["count"].as_u64().unwrap_or(0);
+    let ok = worst.0 < 1e-3 && n as u64 == stats.count;
     r.check(
         "statistics",
         "stats.json matches the train split recomputed with polars",
         ok,
         format!(
             "{n} weighted frames (stats.json: {}); largest difference {:.2e} of a std ({})",
-            stats["count"], worst.0, worst.1
+            stats.count, worst.0, worst.1
         ),
     );
-    r.floored_features = stats["floored"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|v| v.as_str().map(String::from))
-                .collect()
-        })
-        .unwrap_or_default();
+    r.floored_features = stats.floored;
     Ok(())
 }
 

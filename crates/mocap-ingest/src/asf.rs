@@ -367,7 +367,6 @@ fn topological_needed(bones: &[Bone], kept: &[usize]) -> Option<Vec<usize>> {
                 return None;
             }
         }
-        // depth of each bone on the chain
     }
     for i in 0..bones.len() {
         if mark[i] {

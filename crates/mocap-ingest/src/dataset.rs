@@ -9,7 +9,7 @@
 
 use crate::features::{feature_names, NUM_FEATURES};
 use crate::source::{subject_of, Format, Source, TakeInput};
-use crate::{clip_from_motion, read_amc, read_bvh, Clip, IngestError, Options};
+use crate::{process_take_with, Clip, ErrorKind, IngestError, Options};
 use arrow_array::{ArrayRef, Float32Array, RecordBatch, StringArray, UInt32Array};
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use parquet::arrow::ArrowWriter;
@@ -226,56 +226,28 @@ type Readers = Vec<Option<crate::source::SourceReader>>;
 fn run_job(job: &Job, readers: &mut Readers, opts: &Options) -> Done {
     let display = job.source.portable_name(&job.take.motion.name);
     let mut inputs = Vec::new();
-    let reader = &mut readers[job.source_index];
-    let result = (|| {
-        let reader = match reader {
-            Some(r) => r,
-            None => {
-                *reader = Some(job.source.reader().map_err(|e| {
-                    IngestError::new(
-                        &display,
-                        crate::ErrorKind::Io(std::io::Error::other(e.to_string())),
-                    )
-                })?);
-                reader.as_mut().ok_or_else(|| {
-                    IngestError::new(
-                        &display,
-                        crate::ErrorKind::Io(std::io::Error::other("no reader")),
-                    )
-                })?
-            }
-        };
-        let mut read = |name: &str| {
-            let shown = job.source.portable_name(name);
-            let bytes = reader
-                .read(name)
-                .map_err(|e| IngestError::new(&shown, crate::ErrorKind::Io(e)))?;
+    let slot = &mut readers[job.source_index];
+    let reader = match slot {
+        Some(r) => Ok(r),
+        None => job
+            .source
+            .reader()
+            .map(|r| slot.insert(r))
+            .map_err(|e| IngestError::new(&display, ErrorKind::Io(std::io::Error::other(e)))),
+    };
+    let result = reader.and_then(|reader| {
+        // Every file read is recorded (size, SHA-256) for the manifest.
+        let read = |name: &str| {
+            let bytes = reader.read(name)?;
             inputs.push(InputFile {
-                path: shown,
+                path: job.source.portable_name(name),
                 size: bytes.len() as u64,
                 sha256: sha256_hex(&bytes),
             });
-            Ok::<_, IngestError>(bytes)
+            Ok(bytes)
         };
-        let bytes = read(&job.take.motion.name)?;
-        let motion = match job.take.format {
-            Format::Bvh => read_bvh(&display, &bytes)?,
-            Format::Amc => {
-                let Some(asf) = &job.take.asf else {
-                    return Err(IngestError::new(
-                        &display,
-                        crate::ErrorKind::MissingAsf {
-                            expected: job.take.asf_expected.clone(),
-                        },
-                    ));
-                };
-                let asf_bytes = read(&asf.name)?;
-                let asf_shown = job.source.portable_name(&asf.name);
-                read_amc(&display, &bytes, &asf_shown, &asf_bytes, opts.asf)?
-            }
-        };
-        clip_from_motion(&display, &job.take.take_id, &motion, opts)
-    })();
+        process_take_with(&job.take, |n| job.source.portable_name(n), read, opts)
+    });
     Done {
         result,
         display,

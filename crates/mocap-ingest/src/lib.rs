@@ -158,10 +158,20 @@ pub fn process_take(
     take: &TakeInput,
     options: &Options,
 ) -> Result<Clip, IngestError> {
+    process_take_with(take, display, |name| reader.read(name), options)
+}
+
+/// [`process_take`] with the file reading supplied by the caller (`read`
+/// gets each file's name in the collection: the motion file, then, for AMC,
+/// its ASF); `display` names files in errors.
+pub fn process_take_with(
+    take: &TakeInput,
+    display: impl Fn(&str) -> String,
+    mut read: impl FnMut(&str) -> std::io::Result<Vec<u8>>,
+    options: &Options,
+) -> Result<Clip, IngestError> {
     let file = display(&take.motion.name);
-    let bytes = reader
-        .read(&take.motion.name)
-        .map_err(|e| IngestError::new(&file, ErrorKind::Io(e)))?;
+    let bytes = read(&take.motion.name).map_err(|e| IngestError::new(&file, ErrorKind::Io(e)))?;
     let motion = match take.format {
         Format::Bvh => read_bvh(&file, &bytes)?,
         Format::Amc => {
@@ -174,9 +184,8 @@ pub fn process_take(
                 ));
             };
             let asf_file = display(&asf.name);
-            let asf_bytes = reader
-                .read(&asf.name)
-                .map_err(|e| IngestError::new(&asf_file, ErrorKind::Io(e)))?;
+            let asf_bytes =
+                read(&asf.name).map_err(|e| IngestError::new(&asf_file, ErrorKind::Io(e)))?;
             read_amc(&file, &bytes, &asf_file, &asf_bytes, options.asf)?
         }
     };

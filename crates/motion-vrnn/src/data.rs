@@ -3,7 +3,6 @@
 
 use candle_core::{Device, Tensor};
 use polars::prelude::*;
-use serde::Deserialize;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -42,16 +41,8 @@ fn column<T>(
         .map_err(|e| read_err(path, e))
 }
 
-/// Normalisation statistics (`stats.json`).
-#[derive(Clone, Debug, Deserialize)]
-pub struct Stats {
-    /// Feature names, in column order.
-    pub features: Vec<String>,
-    /// Per-feature mean.
-    pub mean: Vec<f64>,
-    /// Per-feature standard deviation (floored).
-    pub std: Vec<f64>,
-}
+/// Normalisation statistics (`stats.json`), as the dataset stage writes them.
+pub use mocap_ingest::dataset::Stats;
 
 /// The windows of one split, normalised: `n × length × features`, row-major.
 #[derive(Clone, Debug)]
