@@ -41,6 +41,9 @@ enum Command {
         /// Timed steps per batch size (after 2 warm-up steps).
         #[arg(long, default_value_t = 5)]
         steps: usize,
+        /// Also time the plain autograd path (the "before" of issue 7).
+        #[arg(long)]
+        autograd: bool,
     },
     /// Benchmark `dataset` end to end on the CMU samples, 1 thread and all
     /// cores, each in a fresh process (reports peak RSS).
@@ -77,7 +80,11 @@ fn main() -> Result<()> {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
         Command::Audit(args) => audit::run(args),
-        Command::BenchTrain { batch, steps } => train::bench(&batch, steps.max(1)),
+        Command::BenchTrain {
+            batch,
+            steps,
+            autograd,
+        } => train::bench(&batch, steps.max(1), autograd),
         Command::BenchDataset { sources, repeat } => dataset::bench(sources, repeat),
         Command::BenchIngest { sources, repeat } => bench_ingest(sources, repeat),
         Command::Inspect {

@@ -205,45 +205,59 @@ pub fn plot_history(path: &Path, history: &[EpochMetrics]) -> Result<()> {
 
 /// `cargo xtask bench-train`: seconds per training step (forward, backward,
 /// Adam) of the paper's model on random windows, and the sampling time.
-pub fn bench(batches: &[usize], steps: usize) -> Result<()> {
+pub fn bench(batches: &[usize], steps: usize, autograd: bool) -> Result<()> {
     use motion_vrnn::optim::Adam;
     use motion_vrnn::train::{init_model, named_vars, noise};
     let device = motion_vrnn::model::default_device();
     let cfg = TrainConfig::paper();
     let t = 128;
-    println!("training step of the paper's VRNN (T = {t}, forward + backward + Adam) on {device:?}, after 2 warm-up steps");
     println!(
-        "{:>6} {:>6} {:>10} {:>10} {:>16}",
-        "batch", "steps", "median s", "min s", "windows*frames/s"
+        "training step of the paper's VRNN (T = {t}, forward + backward + Adam) on {device:?}, {} rayon threads, after 2 warm-up steps",
+        rayon::current_num_threads()
     );
+    println!(
+        "{:>9} {:>6} {:>6} {:>10} {:>10} {:>16}",
+        "path", "batch", "steps", "median s", "min s", "windows*frames/s"
+    );
+    let paths: &[&str] = if autograd {
+        &["autograd", "fused"]
+    } else {
+        &["fused"]
+    };
     for &b in batches {
-        let m = init_model(&cfg.model, 0, &device)?;
-        let mut adam = Adam::new(named_vars(&m.varmap), cfg.adam)?;
-        let x = candle_core::Tensor::from_vec(
-            motion_vrnn::rng::Rng::new(1, b as u64).normals(b * t * cfg.model.input),
-            (b, t, cfg.model.input),
-            &device,
-        )?;
-        let mut times = Vec::new();
-        for step in 0..steps + 2 {
-            let eps = noise(0, step as u64, t, b, cfg.model.latent, &device)?;
-            let start = std::time::Instant::now();
-            let l = m.model.forward(&x, &eps)?;
-            let loss = (&l.recon + &l.kl)?;
-            let grads = loss.backward()?;
-            adam.step(&grads)?;
-            let _ = loss.to_scalar::<f32>()?;
-            if step >= 2 {
-                times.push(start.elapsed().as_secs_f64());
+        for &path in paths {
+            let m = init_model(&cfg.model, 0, &device)?;
+            let mut adam = Adam::new(named_vars(&m.varmap), cfg.adam)?;
+            let x = candle_core::Tensor::from_vec(
+                motion_vrnn::rng::Rng::new(1, b as u64).normals(b * t * cfg.model.input),
+                (b, t, cfg.model.input),
+                &device,
+            )?;
+            let mut times = Vec::new();
+            for step in 0..steps + 2 {
+                let eps = noise(0, step as u64, t, b, cfg.model.latent, &device)?;
+                let start = std::time::Instant::now();
+                let l = if path == "fused" {
+                    m.model.losses(&x, &eps, Some(1.0))?
+                } else {
+                    m.model.forward(&x, &eps)?
+                };
+                let loss = (&l.recon + &l.kl)?;
+                let grads = loss.backward()?;
+                adam.step(&grads)?;
+                let _ = loss.to_scalar::<f32>()?;
+                if step >= 2 {
+                    times.push(start.elapsed().as_secs_f64());
+                }
             }
+            times.sort_by(f64::total_cmp);
+            let median = times[times.len() / 2];
+            println!(
+                "{path:>9} {b:>6} {steps:>6} {median:>10.4} {:>10.4} {:>16.0}",
+                times[0],
+                (b * t) as f64 / median
+            );
         }
-        times.sort_by(f64::total_cmp);
-        let median = times[times.len() / 2];
-        println!(
-            "{b:>6} {steps:>6} {median:>10.4} {:>10.4} {:>16.0}",
-            times[0],
-            (b * t) as f64 / median
-        );
     }
     let m = init_model(&cfg.model, 0, &device)?;
     let mut times = Vec::new();

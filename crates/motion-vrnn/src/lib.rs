@@ -3,12 +3,14 @@
 //! windows written by `cargo xtask dataset`.
 //!
 //! - [`model`]: `Config`, `Vrnn::new(vb)`, `forward` (losses), `sample`.
+//! - [`fused`]: the training loss as one CPU kernel with a hand-written backward.
 //! - [`data`]: the dataset through polars, normalised by its `stats.json`.
 //! - [`optim`]: Adam with saveable state; gradient-norm clipping.
 //! - [`train`]: the training loop, checkpoints, resume, metrics.
 //! - [`rng`]: the seeded RNG behind every random number.
 
 pub mod data;
+pub mod fused;
 pub mod model;
 pub mod optim;
 pub mod rng;

@@ -11,6 +11,7 @@
 //! averaged over the batch. Standard deviations are clamped to at least
 //! [`SIGMA_MIN`] so the logs stay finite.
 
+use crate::fused;
 use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::rnn::{LSTMConfig, LSTMState, LSTM, RNN};
 use candle_nn::{linear, Linear, Module, VarBuilder};
@@ -78,6 +79,8 @@ pub struct Vrnn {
     encoder: Gaussian,
     decoder: [Linear; 3],
     rnn: LSTM,
+    /// Every parameter in [`fused::param_layout`] order.
+    params: Vec<Tensor>,
 }
 
 /// Losses of a batch: summed over time, averaged over the batch (scalars).
@@ -95,6 +98,12 @@ impl Vrnn {
         let c = config;
         let [e1, e2] = c.extractor;
         let [d1, d2] = c.decoder;
+        let params = |vb: &VarBuilder| -> Result<Vec<Tensor>> {
+            fused::param_layout(c)
+                .into_iter()
+                .map(|(name, shape)| vb.get(shape, &name))
+                .collect()
+        };
         Ok(Vrnn {
             config: c.clone(),
             phi_x: [
@@ -114,6 +123,7 @@ impl Vrnn {
                 LSTMConfig::default(),
                 vb.pp("rnn"),
             )?,
+            params: params(&vb)?,
         })
     }
 
@@ -172,10 +182,52 @@ impl Vrnn {
         })
     }
 
+    /// Every parameter flattened and concatenated in [`fused::param_layout`]
+    /// order (differentiable).
+    pub fn flat_params(&self) -> Result<Tensor> {
+        let flat: Vec<Tensor> = self
+            .params
+            .iter()
+            .map(|p| p.flatten_all())
+            .collect::<Result<_>>()?;
+        Tensor::cat(&flat, 0)
+    }
+
+    /// Losses of a batch, as [`Vrnn::forward`], through the fused kernel of
+    /// [`fused`] on the CPU (autograd elsewhere). With `kl_weight`, the
+    /// forward pass also prepares the gradient of `recon + kl_weight · kl`,
+    /// which `backward` of exactly that sum then reuses; any other use of the
+    /// losses stays correct but computes the gradient again.
+    pub fn losses(&self, x: &Tensor, eps: &Tensor, kl_weight: Option<f64>) -> Result<Losses> {
+        if !x.device().is_cpu() {
+            return self.forward(x, eps);
+        }
+        let flat = self.flat_params()?;
+        let op = fused::VrnnLoss::new(&self.config, kl_weight.map(|w| w as f32));
+        let out = x.contiguous()?.apply_op3(&eps.contiguous()?, &flat, op)?;
+        Ok(Losses {
+            recon: out.get(0)?,
+            kl: out.get(1)?,
+        })
+    }
+
     /// Sample `eps.len()` frames per sequence from the prior, feeding each
     /// decoded frame (the decoder mean) back as the next input.
     /// `eps: [T, B, latent]`; returns `[B, T, input]` (normalised units).
     pub fn sample(&self, eps: &Tensor) -> Result<Tensor> {
+        let (t, b, _) = eps.dims3()?;
+        if eps.device().is_cpu() {
+            let w = self.flat_params()?.to_vec1::<f32>()?;
+            let e = eps.flatten_all()?.to_vec1::<f32>()?;
+            let out = fused::sample(&self.config, &w, &e, b, t);
+            return Tensor::from_vec(out, (b, t, self.config.input), eps.device());
+        }
+        self.sample_autograd(eps)
+    }
+
+    /// [`Vrnn::sample`] through candle ops on any device (the reference for
+    /// the fused CPU sampler).
+    pub fn sample_autograd(&self, eps: &Tensor) -> Result<Tensor> {
         let (t, b, _) = eps.dims3()?;
         let mut state = self.rnn.zero_state(b)?;
         let mut frames = Vec::with_capacity(t);

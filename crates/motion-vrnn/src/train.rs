@@ -261,7 +261,7 @@ pub fn evaluate(
             model.config().latent,
             device,
         )?;
-        let l = model.forward(&x, &eps)?;
+        let l = model.losses(&x, &eps, None)?;
         let w = chunk.len() as f64;
         recon += l.recon.to_scalar::<f32>()? as f64 * w;
         kl += l.kl.to_scalar::<f32>()? as f64 * w;
@@ -439,7 +439,7 @@ pub fn train(
                 config.model.latent,
                 device,
             )?;
-            let l = t.model.forward(&x, &eps)?;
+            let l = t.model.losses(&x, &eps, Some(kl_w))?;
             let loss = (&l.recon + (&l.kl * kl_w)?)?;
             let (r, k) = (l.recon.to_scalar::<f32>()?, l.kl.to_scalar::<f32>()?);
             if !(r.is_finite() && k.is_finite()) {
