@@ -40,6 +40,45 @@ fn bone_length_deviation(m: &Motion) -> f64 {
     (1..NUM_JOINTS).map(|j| hi[j] - lo[j]).fold(0.0, f64::max)
 }
 
+/// Features → global → features gives the features back: a whole take
+/// exactly (to 1e-9), and a 128-frame window from its middle up to the floor
+/// (re-derived from the window's first frame) and frame 0's velocities (which
+/// repeat frame 1's).
+fn round_trip(f: &[features::FeatureVec]) {
+    use features::{compute_features, floor_height, to_global, NUM_FEATURES, VEL_X};
+    let back = compute_features(&to_global(f)).unwrap();
+    for (t, (a, b)) in f.iter().zip(&back).enumerate() {
+        for k in 0..NUM_FEATURES {
+            assert!(
+                (a[k] - b[k]).abs() < 1e-9,
+                "frame {t}, feature {k}: {} vs {}",
+                a[k],
+                b[k]
+            );
+        }
+    }
+    if f.len() >= 64 + 128 {
+        let w = &f[64..64 + 128];
+        let g = to_global(w);
+        let shift = floor_height(&g[0]);
+        let back = compute_features(&g).unwrap();
+        for (t, (a, b)) in w.iter().zip(&back).enumerate() {
+            for k in 0..NUM_FEATURES {
+                if t == 0 && k >= VEL_X {
+                    continue;
+                }
+                // Heights (root and every joint's y) are relative to the floor.
+                let y = k == 0 || (k < VEL_X && (k - 1) % 3 == 1);
+                let expect = if y { a[k] - shift } else { a[k] };
+                assert!(
+                    (expect - b[k]).abs() < 1e-9,
+                    "window frame {t}, feature {k}"
+                );
+            }
+        }
+    }
+}
+
 fn check_archive(path: &std::path::Path, format: Format, expect_takes: usize) {
     let source = Source::open(path).unwrap();
     let takes: Vec<TakeInput> = source.takes().unwrap();
@@ -57,6 +96,7 @@ fn check_archive(path: &std::path::Path, format: Format, expect_takes: usize) {
                 .features
                 .iter()
                 .all(|f| f.iter().all(|v| v.is_finite())));
+            round_trip(&clip.features);
             (m.num_frames(), bone_length_deviation(&m))
         })
         .collect();

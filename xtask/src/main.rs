@@ -6,6 +6,7 @@
 mod audit;
 mod dataset;
 mod fetch;
+mod motion;
 mod plot;
 mod train;
 
@@ -33,6 +34,12 @@ enum Command {
     Audit(audit::AuditArgs),
     /// Train the paper's VRNN on a dataset (checkpoints, metrics, loss curve).
     Train(train::TrainArgs),
+    /// Sample motions from a trained run's prior (and reconstruct test
+    /// windows): Parquet + JSON, contact sheet, animations, HTML viewer.
+    Sample(motion::SampleArgs),
+    /// Measure a trained run against real windows: ELBO, diversity,
+    /// smoothness, bone lengths, foot skating, Fréchet distance.
+    Eval(motion::EvalArgs),
     /// Benchmark a training step at given batch sizes, and sampling.
     BenchTrain {
         /// Batch sizes.
@@ -79,6 +86,8 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
+        Command::Sample(args) => motion::sample(args),
+        Command::Eval(args) => motion::eval(args),
         Command::Audit(args) => audit::run(args),
         Command::BenchTrain {
             batch,

@@ -14,14 +14,16 @@ pub struct Series<'a> {
     pub points: Vec<(f64, f64)>,
 }
 
-struct Canvas {
-    w: usize,
-    h: usize,
-    px: Vec<u8>,
+/// An RGB raster.
+pub(crate) struct Canvas {
+    pub(crate) w: usize,
+    pub(crate) h: usize,
+    pub(crate) px: Vec<u8>,
 }
 
 impl Canvas {
-    fn new(w: usize, h: usize) -> Canvas {
+    /// A white canvas.
+    pub(crate) fn new(w: usize, h: usize) -> Canvas {
         Canvas {
             w,
             h,
@@ -29,14 +31,21 @@ impl Canvas {
         }
     }
 
-    fn set(&mut self, x: i64, y: i64, c: [u8; 3]) {
+    pub(crate) fn set(&mut self, x: i64, y: i64, c: [u8; 3]) {
         if x >= 0 && y >= 0 && (x as usize) < self.w && (y as usize) < self.h {
             let i = (y as usize * self.w + x as usize) * 3;
             self.px[i..i + 3].copy_from_slice(&c);
         }
     }
 
-    fn line(&mut self, (x0, y0): (f64, f64), (x1, y1): (f64, f64), c: [u8; 3], thick: i64) {
+    /// A line `thick` pixels wide.
+    pub(crate) fn line(
+        &mut self,
+        (x0, y0): (f64, f64),
+        (x1, y1): (f64, f64),
+        c: [u8; 3],
+        thick: i64,
+    ) {
         let n = ((x1 - x0).abs().max((y1 - y0).abs()).ceil() as i64).max(1);
         for i in 0..=n {
             let t = i as f64 / n as f64;
@@ -53,7 +62,8 @@ impl Canvas {
         }
     }
 
-    fn text(&mut self, x: i64, y: i64, s: &str, c: [u8; 3]) {
+    /// Text in the 5×7 font, top-left at `(x, y)`.
+    pub(crate) fn text(&mut self, x: i64, y: i64, s: &str, c: [u8; 3]) {
         for (k, ch) in s.chars().enumerate() {
             let g = glyph(ch);
             for (row, bits) in g.iter().enumerate() {
@@ -219,17 +229,40 @@ pub fn line_plot(
         );
         cv.text(x + 26, y, s.name, black);
     }
+    save_png(&cv, path)
+}
+
+/// Write a canvas as a PNG (write, then rename).
+pub(crate) fn save_png(cv: &Canvas, path: &Path) -> Result<()> {
+    save_apng(std::slice::from_ref(cv), 0, path)
+}
+
+/// Write canvases of one size as an animated PNG at `fps` frames per
+/// second, looping (a single canvas gives a plain PNG).
+pub(crate) fn save_apng(frames: &[Canvas], fps: u16, path: &Path) -> Result<()> {
+    let Some(first) = frames.first() else {
+        anyhow::bail!("{}: no frames to write", path.display());
+    };
     let tmp = path.with_extension("png.tmp");
     let file =
         std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);
+    let mut enc = png::Encoder::new(
+        std::io::BufWriter::new(file),
+        first.w as u32,
+        first.h as u32,
+    );
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
+    if frames.len() > 1 {
+        enc.set_animated(frames.len() as u32, 0)?;
+        enc.set_frame_delay(1, fps.max(1))?;
+    }
     let mut wr = enc.write_header()?;
-    wr.write_image_data(&cv.px)?;
+    for f in frames {
+        wr.write_image_data(&f.px)?;
+    }
     wr.finish()?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
 }
 
 /// Render a histogram of `values` (non-finite ones are ignored) into a PNG.

@@ -153,6 +153,46 @@ pub fn root_delta(prev: &LocalFrame, cur: &LocalFrame) -> [f64; 3] {
     [dot(prev.ex, d), dot(prev.ez, d), theta]
 }
 
+/// Global joint positions of a feature sequence: the inverse of
+/// [`compute_features`]. The root starts at the origin facing +z
+/// (`ex = (−1, 0, 0)`, `ez = (0, 0, 1)`); each step moves the local frame by
+/// the frame's `(vel_x, vel_z)` in the previous frame's axes and turns it by
+/// `ang_vel_y` (`R(t) = R(t−1)·R_y(θ)`), then places the joints at their
+/// local coordinates. The floor is `y = 0`. Frame 0's velocities are not used.
+pub fn to_global(frames: &[FeatureVec]) -> Vec<Pose> {
+    let mut ex: Vec3 = [-1.0, 0.0, 0.0];
+    let mut ez: Vec3 = [0.0, 0.0, 1.0];
+    let mut origin: Vec3 = [0.0; 3];
+    let mut out = Vec::with_capacity(frames.len());
+    for (t, f) in frames.iter().enumerate() {
+        if t > 0 {
+            let (dx, dz, th) = (f[VEL_X], f[VEL_Z], f[ANG_VEL_Y]);
+            for k in 0..3 {
+                origin[k] += ex[k] * dx + ez[k] * dz;
+            }
+            let (s, c) = th.sin_cos();
+            let (nx, nz) = (
+                [c * ex[0] - s * ez[0], 0.0, c * ex[2] - s * ez[2]],
+                [s * ex[0] + c * ez[0], 0.0, s * ex[2] + c * ez[2]],
+            );
+            // Renormalise so long sequences do not drift from orthonormal.
+            ex = scale(nx, 1.0 / norm(nx));
+            ez = scale(nz, 1.0 / norm(nz));
+        }
+        let mut pose: Pose = [[0.0; 3]; NUM_JOINTS];
+        pose[HIPS] = [origin[0], f[ROOT_Y], origin[2]];
+        for (j, p) in pose.iter_mut().enumerate().skip(1) {
+            let l = &f[1 + 3 * (j - 1)..4 + 3 * (j - 1)];
+            for k in 0..3 {
+                p[k] = origin[k] + ex[k] * l[0] + ez[k] * l[2];
+            }
+            p[1] += l[1];
+        }
+        out.push(pose);
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -246,5 +286,35 @@ mod tests {
         assert_eq!(n[1], "LeftUpLeg_x");
         assert_eq!(n[54], "RightHand_z");
         assert_eq!(n[VEL_X], "vel_x");
+    }
+
+    #[test]
+    fn to_global_inverts_compute_features() {
+        // Walk forward while turning, over a hand-built pose.
+        let poses: Vec<Pose> = (0..12)
+            .map(|t| pose(0.3 * t as f64, 0.2 * t as f64, 0.15 * t as f64))
+            .collect();
+        let f = compute_features(&poses).unwrap();
+        let g = to_global(&f);
+        let back = compute_features(&g).unwrap();
+        for (a, b) in f.iter().zip(&back) {
+            for k in 0..NUM_FEATURES {
+                assert!(
+                    (a[k] - b[k]).abs() < 1e-9,
+                    "feature {k}: {} vs {}",
+                    a[k],
+                    b[k]
+                );
+            }
+        }
+        // Same shape, rigidly moved: distances between joints are kept.
+        for (p, q) in poses.iter().zip(&g) {
+            let d = |x: &Pose, i: usize, j: usize| norm(sub(x[i], x[j]));
+            assert!((d(p, 0, 15) - d(q, 0, 15)).abs() < 1e-9);
+            assert!((d(p, 4, 18) - d(q, 4, 18)).abs() < 1e-9);
+        }
+        // Frame 0 starts at the origin, on the floor, facing +z.
+        assert_eq!([g[0][HIPS][0], g[0][HIPS][2]], [0.0, 0.0]);
+        assert_eq!(g[0][HIPS][1], f[0][ROOT_Y]);
     }
 }

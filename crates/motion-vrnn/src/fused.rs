@@ -212,6 +212,28 @@ fn add_col_sums(dst: &mut [f32], src: &[f32], off: usize, rs: usize, rows: usize
     }
 }
 
+/// A linear layer over `rows` rows: `dst = x · Wᵀ + b`, then ReLU if `relu`.
+/// `(rows, out, k)` are the sizes; `W: [out, k]` starts at `w[wo]` with row
+/// stride `ws` (≥ k, to read a column block) and `b` at `w[bo]`; `dst` rows
+/// have stride `drs`; `x` is read through the view `xv`.
+#[allow(clippy::too_many_arguments)]
+fn dense(
+    dst: &mut [f32],
+    drs: usize,
+    (rows, out, k): (usize, usize, usize),
+    x: &[f32],
+    xv: V,
+    w: &[f32],
+    (wo, ws, bo): (usize, usize, usize),
+    relu: bool,
+) {
+    fill_rows(dst, 0, drs, rows, &w[bo..bo + out]);
+    mm(rows, out, k, dst, rm(0, drs), true, x, xv, w, tr(wo, ws));
+    if relu {
+        relu_in_place(dst, 0, drs, rows, out);
+    }
+}
+
 fn relu_in_place(v: &mut [f32], off: usize, rs: usize, rows: usize, w: usize) {
     for r in 0..rows {
         for x in &mut v[off + r * rs..][..w] {
@@ -330,6 +352,20 @@ impl Dims {
     }
 }
 
+/// The LSTM weights applied to `U`'s `[z | h]` columns,
+/// `[W_ih[:, z part] | W_hh]` (`[4h, z + h]`), and the summed gate biases.
+fn lstm_packed(d: &Dims, o: &Offsets, w: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let (h, z, e2) = (d.h, d.z, d.e2);
+    let (h4, zh) = (4 * h, z + h);
+    let mut wzh = vec![0.0f32; h4 * zh];
+    for r in 0..h4 {
+        wzh[r * zh..r * zh + z].copy_from_slice(&w[o.wih + r * (e2 + z) + e2..][..z]);
+        wzh[r * zh + z..(r + 1) * zh].copy_from_slice(&w[o.whh + r * h..][..h]);
+    }
+    let bias = (0..h4).map(|k| w[o.bih + k] + w[o.bhh + k]).collect();
+    (wzh, bias)
+}
+
 /// Per-shard buffers, reused from shard to shard.
 #[derive(Default)]
 struct Work {
@@ -348,7 +384,6 @@ struct Work {
     t1: Vec<f32>,
     t2: Vec<f32>,
     dc: Vec<f32>,
-    wzh: Vec<f32>,
 }
 
 /// Make `v` hold `n` values; old contents stay (callers overwrite them).
@@ -372,6 +407,9 @@ struct Call<'a> {
     eps: &'a [f32],
     batch: usize,
     t: usize,
+    /// See [`lstm_packed`].
+    wzh: Vec<f32>,
+    gate_bias: Vec<f32>,
 }
 
 impl Call<'_> {
@@ -409,58 +447,40 @@ impl Call<'_> {
         sized(&mut ws.y1, n * d1);
         sized(&mut ws.y2, n * d2);
         sized(&mut ws.xh, n * i);
-        // [W_ih[:, z part] | W_hh]: the LSTM weights applied to U's [z | h].
-        sized(&mut ws.wzh, h4 * zh);
-        for r in 0..h4 {
-            ws.wzh[r * zh..r * zh + z].copy_from_slice(&w[o.wih + r * (e2 + z) + e2..][..z]);
-            ws.wzh[r * zh + z..(r + 1) * zh].copy_from_slice(&w[o.whh + r * h..][..h]);
-        }
 
         // Feature extractor over all rows: x'' into U[:, 0..e2].
-        fill_rows(&mut ws.a1, 0, e1, n, &w[o.b1..o.b1 + e1]);
-        mm(
-            n,
-            e1,
-            i,
+        dense(
             &mut ws.a1,
-            rm(0, e1),
-            true,
+            e1,
+            (n, e1, i),
             x,
             rm(0, i),
             w,
-            tr(o.w1, i),
-        );
-        relu_in_place(&mut ws.a1, 0, e1, n, e1);
-        fill_rows(&mut ws.u, 0, u, n, &w[o.b2..o.b2 + e2]);
-        mm(
-            n,
-            e2,
-            e1,
-            &mut ws.u,
-            rm(0, u),
+            (o.w1, i, o.b1),
             true,
+        );
+        dense(
+            &mut ws.u,
+            u,
+            (n, e2, e1),
             &ws.a1,
             rm(0, e1),
             w,
-            tr(o.w2, e1),
-        );
-        relu_in_place(&mut ws.u, 0, u, n, e2);
-        // x'' halves of the encoder and of the LSTM input product, plus biases.
-        fill_rows(&mut ws.e, 0, z2, n, &w[o.be..o.be + z2]);
-        mm(
-            n,
-            z2,
-            e2,
-            &mut ws.e,
-            rm(0, z2),
+            (o.w2, e1, o.b2),
             true,
+        );
+        // x'' halves of the encoder and of the LSTM input product, plus biases.
+        dense(
+            &mut ws.e,
+            z2,
+            (n, z2, e2),
             &ws.u,
             rm(0, u),
             w,
-            tr(o.we, e2 + h),
+            (o.we, e2 + h, o.be),
+            false,
         );
-        let bias: Vec<f32> = (0..h4).map(|k| w[o.bih + k] + w[o.bhh + k]).collect();
-        fill_rows(&mut ws.g, 0, h4, n, &bias);
+        fill_rows(&mut ws.g, 0, h4, n, &self.gate_bias);
         mm(
             n,
             h4,
@@ -518,7 +538,7 @@ impl Call<'_> {
                 true,
                 &ws.u,
                 rm(t * u + zc, st_u),
-                &ws.wzh,
+                &self.wzh,
                 tr(0, zh),
             );
             for s in 0..ns {
@@ -544,18 +564,15 @@ impl Call<'_> {
         }
 
         // Prior from h (unused at t = 0, where the prior is N(0, I)).
-        fill_rows(&mut ws.p, 0, z2, n, &w[o.bp..o.bp + z2]);
-        mm(
-            n,
-            z2,
-            h,
+        dense(
             &mut ws.p,
-            rm(0, z2),
-            true,
+            z2,
+            (n, z2, h),
             &ws.u,
             rm(hc, u),
             w,
-            tr(o.wp, h),
+            (o.wp, h, o.bp),
+            false,
         );
         for r in 0..n {
             for k in z..z2 {
@@ -563,46 +580,35 @@ impl Call<'_> {
             }
         }
         // Decoder from [z | h]; xh becomes x̃ − x.
-        fill_rows(&mut ws.y1, 0, d1, n, &w[o.b3..o.b3 + d1]);
-        mm(
-            n,
-            d1,
-            zh,
+        dense(
             &mut ws.y1,
-            rm(0, d1),
-            true,
+            d1,
+            (n, d1, zh),
             &ws.u,
             rm(zc, u),
             w,
-            tr(o.w3, zh),
-        );
-        relu_in_place(&mut ws.y1, 0, d1, n, d1);
-        fill_rows(&mut ws.y2, 0, d2, n, &w[o.b4..o.b4 + d2]);
-        mm(
-            n,
-            d2,
-            d1,
-            &mut ws.y2,
-            rm(0, d2),
+            (o.w3, zh, o.b3),
             true,
+        );
+        dense(
+            &mut ws.y2,
+            d2,
+            (n, d2, d1),
             &ws.y1,
             rm(0, d1),
             w,
-            tr(o.w4, d1),
-        );
-        relu_in_place(&mut ws.y2, 0, d2, n, d2);
-        fill_rows(&mut ws.xh, 0, i, n, &w[o.b5..o.b5 + i]);
-        mm(
-            n,
-            i,
-            d2,
-            &mut ws.xh,
-            rm(0, i),
+            (o.w4, d1, o.b4),
             true,
+        );
+        dense(
+            &mut ws.xh,
+            i,
+            (n, i, d2),
             &ws.y2,
             rm(0, d2),
             w,
-            tr(o.w5, d2),
+            (o.w5, d2, o.b5),
+            false,
         );
         let mut recon = 0.0f64;
         for (d, &xv) in ws.xh.iter_mut().zip(x) {
@@ -807,7 +813,7 @@ impl Call<'_> {
                 true,
                 &ws.g,
                 rm(t * h4, st_g),
-                &ws.wzh,
+                &self.wzh,
                 rm(0, zh),
             );
             for s in 0..ns {
@@ -1008,12 +1014,7 @@ pub fn sample(config: &Config, w: &[f32], eps: &[f32], b: usize, t: usize) -> Ve
     } = d;
     let (zc, hc, z2, h4, zh) = (d.zc(), d.hc(), 2 * z, 4 * h, z + h);
     assert!(w.len() == o.len && eps.len() == t * b * z, "sample: sizes");
-    let mut wzh = vec![0.0f32; h4 * zh];
-    for r in 0..h4 {
-        wzh[r * zh..r * zh + z].copy_from_slice(&w[o.wih + r * (e2 + z) + e2..][..z]);
-        wzh[r * zh + z..(r + 1) * zh].copy_from_slice(&w[o.whh + r * h..][..h]);
-    }
-    let bias: Vec<f32> = (0..h4).map(|k| w[o.bih + k] + w[o.bhh + k]).collect();
+    let (wzh, bias) = lstm_packed(&d, &o, w);
     let mut out = vec![0.0f32; b * t * i];
     let (mut inp, mut c) = (vec![0.0f32; b * u], vec![0.0f32; b * h]);
     let (mut p, mut y1, mut y2) = (vec![0.0; b * z2], vec![0.0; b * d1], vec![0.0; b * d2]);
@@ -1025,18 +1026,15 @@ pub fn sample(config: &Config, w: &[f32], eps: &[f32], b: usize, t: usize) -> Ve
                 inp[s * u + zc..s * u + zc + z].copy_from_slice(&ep[s * z..(s + 1) * z]);
             }
         } else {
-            fill_rows(&mut p, 0, z2, b, &w[o.bp..o.bp + z2]);
-            mm(
-                b,
-                z2,
-                h,
+            dense(
                 &mut p,
-                rm(0, z2),
-                true,
+                z2,
+                (b, z2, h),
                 &inp,
                 rm(hc, u),
                 w,
-                tr(o.wp, h),
+                (o.wp, h, o.bp),
+                false,
             );
             for s in 0..b {
                 for k in 0..z {
@@ -1045,78 +1043,59 @@ pub fn sample(config: &Config, w: &[f32], eps: &[f32], b: usize, t: usize) -> Ve
                 }
             }
         }
-        fill_rows(&mut y1, 0, d1, b, &w[o.b3..o.b3 + d1]);
-        mm(
-            b,
-            d1,
-            zh,
+        dense(
             &mut y1,
-            rm(0, d1),
-            true,
+            d1,
+            (b, d1, zh),
             &inp,
             rm(zc, u),
             w,
-            tr(o.w3, zh),
-        );
-        relu_in_place(&mut y1, 0, d1, b, d1);
-        fill_rows(&mut y2, 0, d2, b, &w[o.b4..o.b4 + d2]);
-        mm(
-            b,
-            d2,
-            d1,
-            &mut y2,
-            rm(0, d2),
+            (o.w3, zh, o.b3),
             true,
+        );
+        dense(
+            &mut y2,
+            d2,
+            (b, d2, d1),
             &y1,
             rm(0, d1),
             w,
-            tr(o.w4, d1),
-        );
-        relu_in_place(&mut y2, 0, d2, b, d2);
-        fill_rows(&mut xh, 0, i, b, &w[o.b5..o.b5 + i]);
-        mm(
-            b,
-            i,
-            d2,
-            &mut xh,
-            rm(0, i),
+            (o.w4, d1, o.b4),
             true,
+        );
+        dense(
+            &mut xh,
+            i,
+            (b, i, d2),
             &y2,
             rm(0, d2),
             w,
-            tr(o.w5, d2),
+            (o.w5, d2, o.b5),
+            false,
         );
         for s in 0..b {
             out[(s * t + step) * i..][..i].copy_from_slice(&xh[s * i..(s + 1) * i]);
         }
-        fill_rows(&mut a1, 0, e1, b, &w[o.b1..o.b1 + e1]);
-        mm(
-            b,
-            e1,
-            i,
+        dense(
             &mut a1,
-            rm(0, e1),
-            true,
+            e1,
+            (b, e1, i),
             &xh,
             rm(0, i),
             w,
-            tr(o.w1, i),
-        );
-        relu_in_place(&mut a1, 0, e1, b, e1);
-        fill_rows(&mut inp, 0, u, b, &w[o.b2..o.b2 + e2]);
-        mm(
-            b,
-            e2,
-            e1,
-            &mut inp,
-            rm(0, u),
+            (o.w1, i, o.b1),
             true,
+        );
+        dense(
+            &mut inp,
+            u,
+            (b, e2, e1),
             &a1,
             rm(0, e1),
             w,
-            tr(o.w2, e1),
+            (o.w2, e1, o.b2),
+            true,
         );
-        relu_in_place(&mut inp, 0, u, b, e2);
         fill_rows(&mut g, 0, h4, b, &bias);
         mm(
             b,
@@ -1200,7 +1179,10 @@ impl VrnnLoss {
                 o.len
             );
         }
+        let (wzh, gate_bias) = lstm_packed(&d, &o, w);
         Ok(Call {
+            wzh,
+            gate_bias,
             d,
             o,
             w,

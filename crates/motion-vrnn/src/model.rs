@@ -182,6 +182,28 @@ impl Vrnn {
         })
     }
 
+    /// Reconstruct real windows `x: [B, T, input]`: encode each step with the
+    /// posterior mean (`z = μz`, no noise), decode it (the decoder mean) and
+    /// feed the real frame to the recurrence. Returns `[B, T, input]`.
+    pub fn reconstruct(&self, x: &Tensor) -> Result<Tensor> {
+        let (b, t, _) = x.dims3()?;
+        let mut state: LSTMState = self.rnn.zero_state(b)?;
+        let mut frames = Vec::with_capacity(t);
+        for step in 0..t {
+            let xt = x.narrow(1, step, 1)?.squeeze(1)?;
+            let h = state.h().clone();
+            let feat = self.features(&xt)?;
+            let (mu_z, _) = self
+                .encoder
+                .forward(&Tensor::cat(&[&feat, &h], D::Minus1)?)?;
+            frames.push(self.decode(&mu_z, &h)?);
+            state = self
+                .rnn
+                .step(&Tensor::cat(&[&feat, &mu_z], D::Minus1)?, &state)?;
+        }
+        Tensor::stack(&frames, 1)
+    }
+
     /// Every parameter flattened and concatenated in [`fused::param_layout`]
     /// order (differentiable).
     pub fn flat_params(&self) -> Result<Tensor> {

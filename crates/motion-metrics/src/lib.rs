@@ -1,0 +1,474 @@
+//! Measures of motion quality, computed the same way on real and generated
+//! motion (definitions in `docs/metrics.md`).
+//!
+//! A motion is a sequence of [`Pose`]s (global joint positions in CMU units,
+//! floor at `y = 0`, as [`mocap_ingest::features::to_global`] returns them).
+//! Feature windows are `[frames][58]` in normalised units.
+
+// Index loops here read like the formulas they implement.
+#![allow(clippy::needless_range_loop)]
+
+use mocap_ingest::skeleton::{Pose, JOINT_PARENTS, NUM_JOINTS};
+use serde::{Deserialize, Serialize};
+
+/// Metres per CMU unit (`(1/0.45)` inches).
+pub const METRES_PER_UNIT: f64 = 0.0564;
+/// Foot joints for skating: LeftToeBase and RightToeBase.
+pub const FEET: [usize; 2] = [4, 8];
+
+/// Options of the motion measures.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Options {
+    /// Frames per second.
+    pub fps: f64,
+    /// Frequency above which spectral power counts as jitter (Hz).
+    pub cutoff_hz: f64,
+    /// A foot is in contact when it is this close to the floor (m).
+    pub contact_m: f64,
+    /// A foot in contact skates when faster than this horizontally (m/s).
+    pub skate_m_s: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            fps: 30.0,
+            cutoff_hz: 5.0,
+            contact_m: 0.05,
+            skate_m_s: 0.5,
+        }
+    }
+}
+
+/// Measures of one set of motions.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MotionStats {
+    /// Number of motions.
+    pub motions: usize,
+    /// Average pairwise distance (m).
+    pub apd_m: f64,
+    /// Mean jerk magnitude (m/s³).
+    pub jerk_m_s3: f64,
+    /// Share of (root-relative, mean-removed) spectral power above the cutoff.
+    pub high_freq_share: f64,
+    /// Mean over bones of std(length)/mean(length).
+    pub bone_cv: f64,
+    /// Share of foot-frames that are in contact yet skate.
+    pub skate_share: f64,
+    /// Share of foot-frames in contact with the floor.
+    pub contact_share: f64,
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Average pairwise distance: over all pairs of motions, the mean Euclidean
+/// distance between corresponding joints at corresponding frames (m). Motions
+/// are compared over their common length.
+pub fn apd(motions: &[Vec<Pose>]) -> f64 {
+    let (mut sum, mut pairs) = (0.0, 0usize);
+    for i in 0..motions.len() {
+        for j in i + 1..motions.len() {
+            let t = motions[i].len().min(motions[j].len());
+            if t == 0 {
+                continue;
+            }
+            let mut d = 0.0;
+            for f in 0..t {
+                for k in 0..NUM_JOINTS {
+                    d += dist(motions[i][f][k], motions[j][f][k]);
+                }
+            }
+            sum += d / (t * NUM_JOINTS) as f64;
+            pairs += 1;
+        }
+    }
+    if pairs == 0 {
+        0.0
+    } else {
+        sum / pairs as f64 * METRES_PER_UNIT
+    }
+}
+
+/// Mean magnitude of the third difference of joint positions times fps³ (m/s³).
+pub fn jerk(m: &[Pose], fps: f64) -> f64 {
+    if m.len() < 4 {
+        return 0.0;
+    }
+    let mut sum = 0.0;
+    for t in 3..m.len() {
+        for k in 0..NUM_JOINTS {
+            let j: Vec<f64> = (0..3)
+                .map(|c| m[t][k][c] - 3.0 * m[t - 1][k][c] + 3.0 * m[t - 2][k][c] - m[t - 3][k][c])
+                .collect();
+            sum += (j[0] * j[0] + j[1] * j[1] + j[2] * j[2]).sqrt();
+        }
+    }
+    sum / ((m.len() - 3) * NUM_JOINTS) as f64 * fps.powi(3) * METRES_PER_UNIT
+}
+
+/// Share of spectral power above `cutoff_hz`: for every joint but the root
+/// and every axis, the position relative to the root with its mean removed,
+/// a Hann window, and the DFT power at `0 < f`; summed over joints and axes.
+pub fn high_freq_share(m: &[Pose], fps: f64, cutoff_hz: f64) -> f64 {
+    let n = m.len();
+    if n < 4 {
+        return 0.0;
+    }
+    let hann: Vec<f64> = (0..n)
+        .map(|t| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * t as f64 / (n - 1) as f64).cos())
+        .collect();
+    let (mut high, mut total) = (0.0, 0.0);
+    let mut x = vec![0.0; n];
+    for k in 1..NUM_JOINTS {
+        for c in 0..3 {
+            for (t, v) in x.iter_mut().enumerate() {
+                *v = m[t][k][c] - m[t][0][c];
+            }
+            let mean = x.iter().sum::<f64>() / n as f64;
+            for (v, w) in x.iter_mut().zip(&hann) {
+                *v = (*v - mean) * w;
+            }
+            for f in 1..=n / 2 {
+                let (mut re, mut im) = (0.0, 0.0);
+                for (t, v) in x.iter().enumerate() {
+                    let a = -2.0 * std::f64::consts::PI * (f * t) as f64 / n as f64;
+                    re += v * a.cos();
+                    im += v * a.sin();
+                }
+                let p = re * re + im * im;
+                total += p;
+                if f as f64 * fps / n as f64 > cutoff_hz {
+                    high += p;
+                }
+            }
+        }
+    }
+    if total > 0.0 {
+        high / total
+    } else {
+        0.0
+    }
+}
+
+/// Mean over the 18 bones (joint to parent) of std(length)/mean(length).
+pub fn bone_cv(m: &[Pose]) -> f64 {
+    if m.is_empty() {
+        return 0.0;
+    }
+    let mut sum = 0.0;
+    let mut bones = 0;
+    for (k, p) in JOINT_PARENTS.iter().enumerate() {
+        let Some(p) = *p else { continue };
+        let l: Vec<f64> = m.iter().map(|pose| dist(pose[k], pose[p])).collect();
+        let mean = l.iter().sum::<f64>() / l.len() as f64;
+        let var = l.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / l.len() as f64;
+        if mean > 0.0 {
+            sum += var.sqrt() / mean;
+        }
+        bones += 1;
+    }
+    sum / bones as f64
+}
+
+/// `(skating, contact)` foot-frame counts and the number of foot-frames. A
+/// foot (toe joint) is in contact at frame `t ≥ 1` when its height is below
+/// `contact_m`, and skates when its horizontal speed from `t − 1` to `t`
+/// exceeds `skate_m_s`.
+pub fn foot_skating(m: &[Pose], o: &Options) -> (usize, usize, usize) {
+    let (mut skate, mut contact, mut all) = (0, 0, 0);
+    for t in 1..m.len() {
+        for &f in &FEET {
+            all += 1;
+            if m[t][f][1] * METRES_PER_UNIT >= o.contact_m {
+                continue;
+            }
+            contact += 1;
+            let (dx, dz) = (m[t][f][0] - m[t - 1][f][0], m[t][f][2] - m[t - 1][f][2]);
+            if (dx * dx + dz * dz).sqrt() * METRES_PER_UNIT * o.fps > o.skate_m_s {
+                skate += 1;
+            }
+        }
+    }
+    (skate, contact, all)
+}
+
+/// Every measure over a set of motions (per-motion values averaged; skating
+/// pooled over all foot-frames).
+pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
+    let n = motions.len().max(1) as f64;
+    let mean = |f: &dyn Fn(&[Pose]) -> f64| motions.iter().map(|m| f(m)).sum::<f64>() / n;
+    let (mut s, mut c, mut a) = (0, 0, 0);
+    for m in motions {
+        let (s1, c1, a1) = foot_skating(m, o);
+        s += s1;
+        c += c1;
+        a += a1;
+    }
+    let a = a.max(1) as f64;
+    MotionStats {
+        motions: motions.len(),
+        apd_m: apd(motions),
+        jerk_m_s3: mean(&|m| jerk(m, o.fps)),
+        high_freq_share: mean(&|m| high_freq_share(m, o.fps, o.cutoff_hz)),
+        bone_cv: mean(&bone_cv),
+        skate_share: s as f64 / a,
+        contact_share: c as f64 / a,
+    }
+}
+
+/// The per-window summary the Fréchet distance compares: each feature's mean
+/// over the window, then each feature's standard deviation over the window.
+pub fn window_summary(window: &[Vec<f32>]) -> Vec<f64> {
+    let f = window.first().map_or(0, |r| r.len());
+    let n = window.len().max(1) as f64;
+    let mut mean = vec![0.0; f];
+    for r in window {
+        for (m, v) in mean.iter_mut().zip(r) {
+            *m += *v as f64 / n;
+        }
+    }
+    let mut std = vec![0.0; f];
+    for r in window {
+        for ((s, v), m) in std.iter_mut().zip(r).zip(&mean) {
+            *s += (*v as f64 - m).powi(2) / n;
+        }
+    }
+    mean.extend(std.into_iter().map(f64::sqrt));
+    mean
+}
+
+fn mean_cov(x: &[Vec<f64>]) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let d = x.first().map_or(0, |r| r.len());
+    let n = x.len() as f64;
+    let mut mu = vec![0.0; d];
+    for r in x {
+        for (m, v) in mu.iter_mut().zip(r) {
+            *m += v / n;
+        }
+    }
+    let mut cov = vec![vec![0.0; d]; d];
+    let denom = (n - 1.0).max(1.0);
+    for r in x {
+        for i in 0..d {
+            let a = r[i] - mu[i];
+            for j in 0..d {
+                cov[i][j] += a * (r[j] - mu[j]) / denom;
+            }
+        }
+    }
+    (mu, cov)
+}
+
+/// Eigenvalues and eigenvectors (columns of the second result) of a
+/// symmetric matrix, by cyclic Jacobi rotations.
+pub fn symmetric_eigen(a: &[Vec<f64>]) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let n = a.len();
+    let mut a: Vec<Vec<f64>> = a.to_vec();
+    let mut v = vec![vec![0.0; n]; n];
+    for (i, row) in v.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    for _sweep in 0..100 {
+        let off: f64 = (0..n)
+            .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
+            .map(|(i, j)| a[i][j] * a[i][j])
+            .sum();
+        let scale: f64 = (0..n).map(|i| a[i][i] * a[i][i]).sum::<f64>().max(1e-300);
+        if off <= 1e-24 * scale {
+            break;
+        }
+        for p in 0..n {
+            for q in p + 1..n {
+                if a[p][q].abs() < 1e-300 {
+                    continue;
+                }
+                let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+                let t = if theta == 0.0 { 1.0 } else { t };
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let s = t * c;
+                for k in 0..n {
+                    let (akp, akq) = (a[k][p], a[k][q]);
+                    a[k][p] = c * akp - s * akq;
+                    a[k][q] = s * akp + c * akq;
+                }
+                for k in 0..n {
+                    let (apk, aqk) = (a[p][k], a[q][k]);
+                    a[p][k] = c * apk - s * aqk;
+                    a[q][k] = s * apk + c * aqk;
+                }
+                for row in v.iter_mut() {
+                    let (vp, vq) = (row[p], row[q]);
+                    row[p] = c * vp - s * vq;
+                    row[q] = s * vp + c * vq;
+                }
+            }
+        }
+    }
+    ((0..n).map(|i| a[i][i]).collect(), v)
+}
+
+/// Symmetric square root of a positive semi-definite matrix (negative
+/// eigenvalues from rounding are taken as 0).
+fn sqrtm_psd(a: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    let (w, v) = symmetric_eigen(a);
+    let n = a.len();
+    let mut out = vec![vec![0.0; n]; n];
+    for k in 0..n {
+        let s = w[k].max(0.0).sqrt();
+        for i in 0..n {
+            for j in 0..n {
+                out[i][j] += v[i][k] * s * v[j][k];
+            }
+        }
+    }
+    out
+}
+
+fn matmul(a: &[Vec<f64>], b: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    let (n, m, p) = (a.len(), b.len(), b.first().map_or(0, |r| r.len()));
+    let mut c = vec![vec![0.0; p]; n];
+    for i in 0..n {
+        for k in 0..m {
+            let x = a[i][k];
+            for j in 0..p {
+                c[i][j] += x * b[k][j];
+            }
+        }
+    }
+    c
+}
+
+/// Fréchet distance between Gaussians fitted to two sets of vectors:
+/// `‖μa − μb‖² + tr(Σa + Σb − 2 (Σa^½ Σb Σa^½)^½)`.
+pub fn frechet(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let (ma, ca) = mean_cov(a);
+    let (mb, cb) = mean_cov(b);
+    let d2: f64 = ma.iter().zip(&mb).map(|(x, y)| (x - y).powi(2)).sum();
+    let sa = sqrtm_psd(&ca);
+    let inner = matmul(&matmul(&sa, &cb), &sa);
+    // Symmetrise against rounding before the eigen-decomposition.
+    let n = inner.len();
+    let inner: Vec<Vec<f64>> = (0..n)
+        .map(|i| (0..n).map(|j| 0.5 * (inner[i][j] + inner[j][i])).collect())
+        .collect();
+    let (w, _) = symmetric_eigen(&inner);
+    let tr_sqrt: f64 = w.iter().map(|v| v.max(0.0).sqrt()).sum();
+    let tr = |c: &[Vec<f64>]| (0..c.len()).map(|i| c[i][i]).sum::<f64>();
+    (d2 + tr(&ca) + tr(&cb) - 2.0 * tr_sqrt).max(0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn still(x: f64) -> Vec<Pose> {
+        let mut p: Pose = [[0.0; 3]; NUM_JOINTS];
+        for (k, j) in p.iter_mut().enumerate() {
+            *j = [x, 1.0 + k as f64, 0.0];
+        }
+        vec![p; 8]
+    }
+
+    #[test]
+    fn apd_of_shifted_copies() {
+        // Three copies 0, 1 and 3 units apart in x: pair distances 1, 3, 2.
+        let m = [still(0.0), still(1.0), still(3.0)];
+        assert!((apd(&m) - 2.0 * METRES_PER_UNIT).abs() < 1e-12);
+    }
+
+    #[test]
+    fn jerk_of_a_cubic() {
+        // x = t³ (frames): third difference 6 units per frame³ for every joint.
+        let m: Vec<Pose> = (0..10)
+            .map(|t| [[(t * t * t) as f64, 0.0, 0.0]; NUM_JOINTS])
+            .collect();
+        assert!((jerk(&m, 30.0) - 6.0 * 27_000.0 * METRES_PER_UNIT).abs() < 1e-6);
+        assert_eq!(jerk(&still(0.0), 30.0), 0.0);
+    }
+
+    #[test]
+    fn high_frequency_share_of_pure_tones() {
+        let tone = |hz: f64| -> Vec<Pose> {
+            (0..128)
+                .map(|t| {
+                    let mut p: Pose = [[0.0; 3]; NUM_JOINTS];
+                    let y = (2.0 * std::f64::consts::PI * hz * t as f64 / 30.0).sin();
+                    for j in p.iter_mut().skip(1) {
+                        *j = [0.0, y, 0.0];
+                    }
+                    p
+                })
+                .collect()
+        };
+        assert!(high_freq_share(&tone(1.0), 30.0, 5.0) < 0.01);
+        assert!(high_freq_share(&tone(10.0), 30.0, 5.0) > 0.99);
+    }
+
+    #[test]
+    fn bone_cv_of_a_stretching_bone() {
+        let mut m = still(0.0);
+        assert_eq!(bone_cv(&m), 0.0);
+        // LeftUpLeg (1) sits at y = 2 or 4 (Hips at 1, LeftLeg at 3): the
+        // bone to Hips has lengths 1 and 3 (cv 1/2), the bone from LeftLeg
+        // lengths 1 and 1 (cv 0); 17 bones stay fixed.
+        for (t, p) in m.iter_mut().enumerate() {
+            p[1] = [0.0, if t % 2 == 0 { 2.0 } else { 4.0 }, 0.0];
+        }
+        assert!((bone_cv(&m) - 0.5 / 18.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn foot_skating_counts() {
+        let o = Options::default();
+        // Toes on the floor; the left toe slides 1 unit per frame
+        // (1·0.0564·30 = 1.69 m/s), the right one stays.
+        let m: Vec<Pose> = (0..5)
+            .map(|t| {
+                let mut p: Pose = [[0.0, 10.0, 0.0]; NUM_JOINTS];
+                p[FEET[0]] = [t as f64, 0.0, 0.0];
+                p[FEET[1]] = [0.0, 0.0, 0.0];
+                p
+            })
+            .collect();
+        assert_eq!(foot_skating(&m, &o), (4, 8, 8));
+        let s = motion_stats(&[m], &o);
+        assert_eq!((s.skate_share, s.contact_share), (0.5, 1.0));
+    }
+
+    #[test]
+    fn frechet_of_known_gaussians() {
+        // Identical sets: 0. Shifted by (3, 4): 25.
+        let a: Vec<Vec<f64>> = vec![
+            vec![0.0, 0.0],
+            vec![1.0, 0.0],
+            vec![0.0, 1.0],
+            vec![1.0, 1.0],
+        ];
+        let b: Vec<Vec<f64>> = a.iter().map(|r| vec![r[0] + 3.0, r[1] + 4.0]).collect();
+        assert!(frechet(&a, &a).abs() < 1e-9);
+        assert!((frechet(&a, &b) - 25.0).abs() < 1e-9);
+        // Scaled by 2 (covariances Σ and 4Σ, Σ = I/3): tr(Σ + 4Σ − 2·2Σ) = tr(Σ) = 2/3.
+        let c: Vec<Vec<f64>> = a
+            .iter()
+            .map(|r| vec![2.0 * r[0] - 0.5, 2.0 * r[1] - 0.5])
+            .collect();
+        assert!((frechet(&a, &c) - 2.0 / 3.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn eigen_of_a_2x2() {
+        let (w, _) = symmetric_eigen(&[vec![2.0, 1.0], vec![1.0, 2.0]]);
+        let mut w = w;
+        w.sort_by(f64::total_cmp);
+        assert!((w[0] - 1.0).abs() < 1e-12 && (w[1] - 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn window_summary_is_mean_then_std() {
+        let w = vec![vec![1.0f32, 0.0], vec![3.0, 0.0]];
+        assert_eq!(window_summary(&w), vec![2.0, 0.0, 1.0, 0.0]);
+    }
+}

@@ -1,0 +1,146 @@
+//! `cargo xtask sample` and `cargo xtask eval` on a small trained run.
+
+mod common;
+
+use common::{six_takes, small_dataset, xtask};
+use std::path::Path;
+
+fn train(ds: &Path, run: &Path) {
+    let ok = xtask()
+        .args([
+            "train", "--quiet", "--batch", "8", "--epochs", "2", "--data",
+        ])
+        .arg(ds)
+        .arg("--out")
+        .arg(run)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+}
+
+fn apng_frames(path: &Path) -> (u32, u32, u32) {
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let r = dec.read_info().unwrap();
+    let info = r.info();
+    let frames = info.animation_control().map_or(1, |a| a.num_frames);
+    (info.width, info.height, frames)
+}
+
+#[test]
+fn sample_and_eval_write_what_they_promise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    small_dataset(&six_takes(tmp.path()), &ds);
+    let run = tmp.path().join("run");
+    train(&ds, &run);
+
+    let sample = |out: &Path| {
+        let o = xtask()
+            .args([
+                "sample",
+                "--n",
+                "3",
+                "--frames",
+                "40",
+                "--split",
+                "val",
+                "--reconstruct",
+                "2",
+                "--run",
+            ])
+            .arg(&run)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    let s = tmp.path().join("s");
+    sample(&s);
+
+    // Parquet: one row per motion, frame and joint.
+    use polars::prelude::*;
+    let df = LazyFrame::scan_parquet(
+        PlRefPath::new(s.join("samples.parquet").to_string_lossy().into_owned()),
+        Default::default(),
+    )
+    .unwrap()
+    .collect()
+    .unwrap();
+    assert_eq!(df.height(), 3 * 40 * 19);
+    let names: Vec<String> = df
+        .get_column_names()
+        .iter()
+        .map(|c| c.to_string())
+        .collect();
+    assert_eq!(names, ["motion", "frame", "joint", "x", "y", "z"]);
+    assert_eq!(df.column("motion").unwrap().n_unique().unwrap(), 3);
+
+    // JSON for the viewer.
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s.join("samples.json")).unwrap()).unwrap();
+    let motions = j["motions"].as_array().unwrap();
+    assert_eq!(motions.len(), 3);
+    assert_eq!(motions[2]["frames"].as_array().unwrap().len(), 40);
+    assert_eq!(motions[2]["frames"][39].as_array().unwrap().len(), 19);
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s.join("reconstructions.json")).unwrap())
+            .unwrap();
+    let ids: Vec<&str> = r["motions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(ids, ["val_000", "recon_000", "val_001", "recon_001"]);
+
+    // Pictures: the contact sheet (one row of 3 motions × 5 time points)
+    // and animations with one frame per motion frame.
+    assert_eq!(apng_frames(&s.join("contact_sheet.png")), (1352, 154, 1));
+    assert_eq!(apng_frames(&s.join("anim/sample_000.png")), (150, 204, 40));
+    assert_eq!(
+        apng_frames(&s.join("anim/val_000_vs_recon_000.png")),
+        (300, 204, 32)
+    );
+
+    // The viewer is one file with its data and no network access.
+    let html = std::fs::read_to_string(s.join("viewer.html")).unwrap();
+    assert!(html.contains("\"id\":\"sample_002\"") && html.contains("\"id\":\"recon_001\""));
+    for needle in ["http://", "https://", "src=", "<link"] {
+        assert!(!html.contains(needle), "viewer.html refers to {needle}");
+    }
+
+    // Same run, same seed: the same motions.
+    let s2 = tmp.path().join("s2");
+    sample(&s2);
+    assert_eq!(
+        std::fs::read(s.join("samples.json")).unwrap(),
+        std::fs::read(s2.join("samples.json")).unwrap()
+    );
+
+    // Evaluation against the val windows.
+    let e = tmp.path().join("e");
+    let o = xtask()
+        .args(["eval", "--split", "val", "--run"])
+        .arg(&run)
+        .arg("--out")
+        .arg(&e)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(e.join("eval.json")).unwrap()).unwrap();
+    let f = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k} missing"));
+    assert!(v["windows"].as_u64().unwrap() > 0);
+    assert!((f("recon_per_frame") + f("kl_per_frame") - f("neg_elbo_per_frame")).abs() < 1e-9);
+    // Real motion is rigid: its bones keep their length.
+    assert!(v["real"]["bone_cv"].as_f64().unwrap() < 1e-6);
+    for set in ["real", "reconstructed", "generated"] {
+        for (k, x) in v[set].as_object().unwrap() {
+            assert!(x.as_f64().unwrap().is_finite(), "{set}.{k}");
+        }
+    }
+    assert!(f("frechet_generated") >= 0.0 && f("frechet_train") >= 0.0);
+    let md = std::fs::read_to_string(e.join("eval.md")).unwrap();
+    assert!(md.contains("| measure | real | reconstructed | generated | generated / real |"));
+}
