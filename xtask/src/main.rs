@@ -103,6 +103,21 @@ fn main() -> Result<()> {
     }
 }
 
+/// Write `path` atomically: `write` fills `NAME.tmp` beside it, which is then
+/// renamed over `path`, so a crash never leaves a half-written file.
+pub(crate) fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(std::fs::File) -> Result<()>,
+) -> Result<()> {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(".tmp");
+    let tmp = path.with_file_name(name);
+    let file =
+        std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    write(file).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+}
+
 /// The workspace root (xtask lives one level below it).
 pub(crate) fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -12,6 +12,7 @@ use motion_metrics::{motion_stats, window_summary, MotionStats, Options};
 use motion_vrnn::data::{Dataset, Stats, Windows};
 use motion_vrnn::train::{evaluate, layout, load_model, noise, CheckpointMeta, Trained};
 use serde::Serialize;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Where a run's model and data come from.
@@ -110,8 +111,8 @@ fn load(a: &RunArgs, splits: &[&str]) -> Result<Loaded> {
     })
 }
 
-/// Normalised features `[T × 58]` → global motion.
-fn to_motion(id: String, x: &[f32], stats: &Stats) -> Motion {
+/// Normalised features `[T × 58]` → global joint positions.
+fn to_poses(x: &[f32], stats: &Stats) -> Vec<Pose> {
     let frames: Vec<FeatureVec> = x
         .chunks(NUM_FEATURES)
         .map(|r| {
@@ -122,9 +123,14 @@ fn to_motion(id: String, x: &[f32], stats: &Stats) -> Motion {
             f
         })
         .collect();
+    to_global(&frames)
+}
+
+/// Normalised features `[T × 58]` → a named global motion.
+fn to_motion(id: String, x: &[f32], stats: &Stats) -> Motion {
     Motion {
         id,
-        poses: to_global(&frames),
+        poses: to_poses(x, stats),
     }
 }
 
@@ -292,17 +298,14 @@ pub fn eval(a: EvalArgs) -> Result<()> {
     let idx: Vec<usize> = (0..w.n).collect();
     let (real, rec) = reconstruct(&m, w, &idx)?;
     let gen = sample_windows(&m, w.n, w.length, a.run.seed)?;
-    let global = |set: &[Vec<f32>], tag: &str| -> Vec<Vec<Pose>> {
-        set.iter()
-            .enumerate()
-            .map(|(k, x)| to_motion(format!("{tag}_{k}"), x, &m.data.stats).poses)
-            .collect()
+    let global = |set: &[Vec<f32>]| -> Vec<Vec<Pose>> {
+        set.iter().map(|x| to_poses(x, &m.data.stats)).collect()
     };
     let o = Options::default();
     let (sr, sc, sg) = (
-        motion_stats(&global(&real, "real"), &o),
-        motion_stats(&global(&rec, "recon"), &o),
-        motion_stats(&global(&gen, "gen"), &o),
+        motion_stats(&global(&real), &o),
+        motion_stats(&global(&rec), &o),
+        motion_stats(&global(&gen), &o),
     );
     let summaries = |set: &[Vec<f32>]| -> Vec<Vec<f64>> {
         set.iter()
@@ -395,9 +398,7 @@ fn markdown(r: &EvalReport) -> String {
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+    crate::write_atomically(path, |mut f| Ok(f.write_all(bytes)?))
 }
 
 /// `NAME.parquet` (motion, frame, joint, x, y, z) and `NAME.json` (the
@@ -435,12 +436,10 @@ fn write_motions(dir: &Path, name: &str, motions: &[Motion]) -> Result<()> {
         Column::from(Series::new("y".into(), y)),
         Column::from(Series::new("z".into(), z)),
     ])?;
-    let path = dir.join(format!("{name}.parquet"));
-    let tmp = path.with_extension("parquet.tmp");
-    let file =
-        std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    ParquetWriter::new(file).finish(&mut df)?;
-    std::fs::rename(&tmp, &path).with_context(|| format!("writing {}", path.display()))?;
+    crate::write_atomically(&dir.join(format!("{name}.parquet")), |f| {
+        ParquetWriter::new(f).finish(&mut df)?;
+        Ok(())
+    })?;
     write_atomic(
         &dir.join(format!("{name}.json")),
         motions_json(motions).as_bytes(),

@@ -1,7 +1,7 @@
 //! A small line-plot renderer for loss curves: no system fonts, no C
 //! dependencies. Lines, axes with ticks, a legend, and a 5×7 bitmap font.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use std::path::Path;
 
 /// One line of the plot.
@@ -243,26 +243,25 @@ pub(crate) fn save_apng(frames: &[Canvas], fps: u16, path: &Path) -> Result<()> 
     let Some(first) = frames.first() else {
         anyhow::bail!("{}: no frames to write", path.display());
     };
-    let tmp = path.with_extension("png.tmp");
-    let file =
-        std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    let mut enc = png::Encoder::new(
-        std::io::BufWriter::new(file),
-        first.w as u32,
-        first.h as u32,
-    );
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    if frames.len() > 1 {
-        enc.set_animated(frames.len() as u32, 0)?;
-        enc.set_frame_delay(1, fps.max(1))?;
-    }
-    let mut wr = enc.write_header()?;
-    for f in frames {
-        wr.write_image_data(&f.px)?;
-    }
-    wr.finish()?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+    crate::write_atomically(path, |file| {
+        let mut enc = png::Encoder::new(
+            std::io::BufWriter::new(file),
+            first.w as u32,
+            first.h as u32,
+        );
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        if frames.len() > 1 {
+            enc.set_animated(frames.len() as u32, 0)?;
+            enc.set_frame_delay(1, fps.max(1))?;
+        }
+        let mut wr = enc.write_header()?;
+        for f in frames {
+            wr.write_image_data(&f.px)?;
+        }
+        wr.finish()?;
+        Ok(())
+    })
 }
 
 /// Render a histogram of `values` (non-finite ones are ignored) into a PNG.

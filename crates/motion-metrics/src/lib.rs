@@ -8,6 +8,7 @@
 // Index loops here read like the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+use mocap_ingest::math::{norm, scale, sub};
 use mocap_ingest::skeleton::{Pose, JOINT_PARENTS, NUM_JOINTS};
 use serde::{Deserialize, Serialize};
 
@@ -59,10 +60,6 @@ pub struct MotionStats {
     pub contact_share: f64,
 }
 
-fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
 /// Average pairwise distance: over all pairs of motions, the mean Euclidean
 /// distance between corresponding joints at corresponding frames (m). Motions
 /// are compared over their common length.
@@ -77,7 +74,7 @@ pub fn apd(motions: &[Vec<Pose>]) -> f64 {
             let mut d = 0.0;
             for f in 0..t {
                 for k in 0..NUM_JOINTS {
-                    d += dist(motions[i][f][k], motions[j][f][k]);
+                    d += norm(sub(motions[i][f][k], motions[j][f][k]));
                 }
             }
             sum += d / (t * NUM_JOINTS) as f64;
@@ -99,10 +96,10 @@ pub fn jerk(m: &[Pose], fps: f64) -> f64 {
     let mut sum = 0.0;
     for t in 3..m.len() {
         for k in 0..NUM_JOINTS {
-            let j: Vec<f64> = (0..3)
-                .map(|c| m[t][k][c] - 3.0 * m[t - 1][k][c] + 3.0 * m[t - 2][k][c] - m[t - 3][k][c])
-                .collect();
-            sum += (j[0] * j[0] + j[1] * j[1] + j[2] * j[2]).sqrt();
+            // p(t) − 3p(t−1) + 3p(t−2) − p(t−3)
+            let a = sub(m[t][k], m[t - 3][k]);
+            let b = sub(m[t - 1][k], m[t - 2][k]);
+            sum += norm(sub(a, scale(b, 3.0)));
         }
     }
     sum / ((m.len() - 3) * NUM_JOINTS) as f64 * fps.powi(3) * METRES_PER_UNIT
@@ -168,7 +165,7 @@ pub fn bone_cv(m: &[Pose]) -> f64 {
     let mut bones = 0;
     for (k, p) in JOINT_PARENTS.iter().enumerate() {
         let Some(p) = *p else { continue };
-        let l: Vec<f64> = m.iter().map(|pose| dist(pose[k], pose[p])).collect();
+        let l: Vec<f64> = m.iter().map(|pose| norm(sub(pose[k], pose[p]))).collect();
         let mean = l.iter().sum::<f64>() / l.len() as f64;
         let var = l.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / l.len() as f64;
         if mean > 0.0 {
