@@ -1,34 +1,90 @@
-//! Helpers shared by the integration tests: where the real CMU samples are.
+//! Helpers shared by the integration tests (here and in `xtask/tests`):
+//! where the real CMU samples are, and what a test does without them.
 //!
 //! The samples live in `../shared/cmu/` beside the repository (override with
 //! `CMU_SHARED_DIR`). They are read at run time and never copied into the
-//! project. When they are missing the tests fail with a message saying what
-//! they need.
+//! project. A test that needs them starts with [`require_samples!`]: when
+//! they are missing it prints `skipped: … needs ../shared/cmu (set
+//! CMU_SHARED_DIR)` and passes, unless `CMU_SAMPLES_REQUIRED=1` (set by
+//! `.ci/run`), in which case it fails.
 
 use std::path::PathBuf;
 
-/// The folder holding `cmu-bvh-sample.zip`, `cmu-asfamc-sample.zip` and `trials.csv`.
+/// The sample files the real-data tests read.
+pub const SAMPLE_FILES: [&str; 3] = [
+    "cmu-bvh-sample.zip",
+    "cmu-asfamc-sample.zip",
+    "cmu-bvh-daz-sample.zip",
+];
+
+/// The environment variable that makes missing samples a failure.
+pub const REQUIRED_VAR: &str = "CMU_SAMPLES_REQUIRED";
+
+/// The folder that should hold the samples: `CMU_SHARED_DIR`, else
+/// `../shared/cmu` beside the repository.
 pub fn shared_cmu_dir() -> PathBuf {
-    let dir = std::env::var_os("CMU_SHARED_DIR")
+    std::env::var_os("CMU_SHARED_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/cmu"));
-    assert!(
-        dir.join("cmu-bvh-sample.zip").is_file() && dir.join("cmu-asfamc-sample.zip").is_file(),
-        "these tests need the CMU samples: {}/cmu-bvh-sample.zip and cmu-asfamc-sample.zip \
-         (set CMU_SHARED_DIR to the folder that holds them)",
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/cmu"))
+}
+
+/// Whether the samples are there. If not: panics when `CMU_SAMPLES_REQUIRED`
+/// is set (to anything but `0` or empty), else prints why the calling test
+/// is skipped and returns `false`.
+pub fn samples_present() -> bool {
+    let dir = shared_cmu_dir();
+    let missing: Vec<&str> = SAMPLE_FILES
+        .iter()
+        .copied()
+        .filter(|f| !dir.join(f).is_file())
+        .collect();
+    if missing.is_empty() {
+        return true;
+    }
+    let test = std::thread::current()
+        .name()
+        .unwrap_or("this test")
+        .to_string();
+    let why = format!(
+        "{test} needs ../shared/cmu (set CMU_SHARED_DIR): {} missing in {}",
+        missing.join(", "),
         dir.display()
     );
-    dir
+    let required = std::env::var(REQUIRED_VAR).is_ok_and(|v| !v.is_empty() && v != "0");
+    assert!(!required, "{REQUIRED_VAR} is set but {why}");
+    eprintln!("skipped: {why}");
+    false
+}
+
+/// Return from the calling test (passing) when the CMU samples are absent;
+/// see [`samples_present`].
+#[macro_export]
+macro_rules! require_samples {
+    () => {
+        if !$crate::samples_present() {
+            return;
+        }
+    };
+}
+
+/// Path of a sample file (call [`require_samples!`] first).
+pub fn sample(name: &str) -> PathBuf {
+    shared_cmu_dir().join(name)
 }
 
 /// Path of the BVH sample archive.
 pub fn bvh_zip() -> PathBuf {
-    shared_cmu_dir().join("cmu-bvh-sample.zip")
+    sample("cmu-bvh-sample.zip")
 }
 
 /// Path of the ASF/AMC sample archive.
 pub fn asfamc_zip() -> PathBuf {
-    shared_cmu_dir().join("cmu-asfamc-sample.zip")
+    sample("cmu-asfamc-sample.zip")
+}
+
+/// Path of the Daz-friendly BVH sample archive.
+pub fn daz_zip() -> PathBuf {
+    sample("cmu-bvh-daz-sample.zip")
 }
 
 /// Read one entry of a sample archive into memory.

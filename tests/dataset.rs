@@ -58,6 +58,7 @@ fn contents(dir: &Path) -> BTreeMap<&'static str, Vec<u8>> {
 
 #[test]
 fn output_is_byte_identical_with_one_thread_and_all_threads() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let bvh = bvh_zip();
     let mut seen = Vec::new();
@@ -76,6 +77,7 @@ fn output_is_byte_identical_with_one_thread_and_all_threads() {
 
 #[test]
 fn broken_files_are_reported_and_do_not_change_the_good_output() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let good = tmp.path().join("good");
     let mixed = tmp.path().join("mixed");
@@ -126,6 +128,7 @@ mod serde_json_like {
 
 #[test]
 fn a_failed_build_keeps_the_previous_dataset() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("ds");
     let src = tmp.path().join("src");
@@ -153,6 +156,7 @@ fn a_failed_build_keeps_the_previous_dataset() {
 
 #[test]
 fn polars_reads_the_dataset_back() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("ds");
     let s = build(&[&bvh_zip(), &asfamc_zip()], &out, 2);

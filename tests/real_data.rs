@@ -15,8 +15,9 @@ fn load(source: &Source, take: &TakeInput) -> Motion {
         Format::Bvh => read_bvh(&file, &bytes),
         Format::Amc => {
             let asf = take.asf.as_ref().expect("ASF beside AMC");
-            let asf_bytes = r.read(&asf.name).expect("read ASF");
-            read_amc(&file, &bytes, &asf.name, &asf_bytes, Default::default())
+            let asf_bytes = r.read_file(asf).expect("read ASF");
+            let asf_file = source.display_file(asf);
+            read_amc(&file, &bytes, &asf_file, &asf_bytes, Default::default())
         }
     }
     .unwrap_or_else(|e| panic!("{e}"))
@@ -112,16 +113,19 @@ fn check_archive(path: &std::path::Path, format: Format, expect_takes: usize) {
 
 #[test]
 fn every_bvh_file_reads_with_constant_bone_lengths() {
+    integration_tests::require_samples!();
     check_archive(&bvh_zip(), Format::Bvh, 139);
 }
 
 #[test]
 fn every_asfamc_file_reads_with_constant_bone_lengths() {
+    integration_tests::require_samples!();
     check_archive(&asfamc_zip(), Format::Amc, 225);
 }
 
 #[test]
 fn bvh_and_asfamc_of_the_same_take_agree() {
+    integration_tests::require_samples!();
     let bvh = Source::open(&bvh_zip()).unwrap();
     let amc = Source::open(&asfamc_zip()).unwrap();
     let bvh_takes: BTreeMap<String, TakeInput> = bvh
@@ -211,6 +215,7 @@ fn rename_joints(text: &str, map: &[(&str, &str)]) -> String {
 
 #[test]
 fn other_bvh_releases_are_recognised_by_joint_names() {
+    integration_tests::require_samples!();
     let bytes = integration_tests::read_entry(&bvh_zip(), "cmu-bvh-motionbuilder/02/02_01.bvh");
     let text = String::from_utf8(bytes).unwrap();
     let mb = read_bvh("mb", text.as_bytes()).unwrap();
@@ -270,4 +275,136 @@ fn other_bvh_releases_are_recognised_by_joint_names() {
     for k in [0, 100, mb.num_frames() - 1] {
         assert_eq!(m3.pose(k + 1), mb.pose(k));
     }
+}
+
+/// Facing direction (radians, about y) of a pose: the horizontal part of
+/// `(LeftArm − Hips) × (RightArm − Hips)`, the local frame's `ez`.
+fn facing(p: &mocap_ingest::Pose) -> f64 {
+    use mocap_ingest::skeleton::{HIPS, LEFT_ARM, RIGHT_ARM};
+    let vf = math::cross(
+        math::sub(p[LEFT_ARM], p[HIPS]),
+        math::sub(p[RIGHT_ARM], p[HIPS]),
+    );
+    vf[0].atan2(vf[2])
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
+/// Metres per CMU unit, for readable speeds.
+const METRES_PER_UNIT: f64 = 0.0564;
+
+#[test]
+fn daz_files_read_and_follow_the_same_trajectory_as_cmu_copies() {
+    integration_tests::require_samples!();
+    use features::{ANG_VEL_Y, VEL_X, VEL_Z};
+    let daz = Source::open(&integration_tests::daz_zip()).unwrap();
+    let copies: Vec<(Source, BTreeMap<String, TakeInput>)> = [asfamc_zip(), bvh_zip()]
+        .iter()
+        .map(|p| {
+            let s = Source::open(p).unwrap();
+            let t = s
+                .takes()
+                .unwrap()
+                .into_iter()
+                .map(|t| (t.take_id.clone(), t))
+                .collect();
+            (s, t)
+        })
+        .collect();
+    let takes = daz.takes().unwrap();
+    assert_eq!(takes.len(), 8);
+    let opts = Options::default();
+    eprintln!(
+        "Daz-friendly BVH vs the same take from ASF/AMC (else Motionbuilder BVH), features at 30 fps:\n\
+         take   other frames | facing° mean   max | speed m/s  Δvel m/s  Δ 1 s | ang_vel°/frame Δrms  Δmax"
+    );
+    let mut worst = [0.0f64; 5];
+    for t in &takes {
+        let m = load(&daz, t);
+        assert_eq!(m.skeleton(), mocap_ingest::SkeletonKind::Daz);
+        let dev = bone_length_deviation(&m);
+        assert!(dev < 1e-9, "{}: bone lengths change by {dev}", t.take_id);
+        let (src, other) = copies
+            .iter()
+            .find_map(|(s, m)| m.get(&t.take_id).map(|o| (s, o)))
+            .unwrap_or_else(|| panic!("{} has no CMU-skeleton copy", t.take_id));
+        let mo = load(src, other);
+        assert_eq!(m.num_frames(), mo.num_frames(), "{}", t.take_id);
+        let a = mocap_ingest::clip_from_motion("daz", &t.take_id, &m, &opts).unwrap();
+        let b = mocap_ingest::clip_from_motion("cmu", &t.take_id, &mo, &opts).unwrap();
+        assert_eq!(a.features.len(), b.features.len());
+        assert!(a.features.iter().all(|f| f.iter().all(|v| v.is_finite())));
+        round_trip(&a.features);
+        // Facing at every native frame.
+        let mut fmax = 0.0f64;
+        let mut fsum = 0.0;
+        for k in 0..m.num_frames() {
+            let d = wrap(facing(&m.pose(k)) - facing(&mo.pose(k))).abs();
+            fmax = fmax.max(d);
+            fsum += d;
+        }
+        let fmean = (fsum / m.num_frames() as f64).to_degrees();
+        // Planar velocity per frame, and summed over one-second windows (the
+        // root's displacement, relative to the CMU copy's).
+        let n = a.features.len();
+        let (mut dv, mut v, mut dw, mut wmax) = (0.0, 0.0, 0.0, 0.0f64);
+        for (x, y) in a.features.iter().zip(&b.features) {
+            dv += (x[VEL_X] - y[VEL_X]).powi(2) + (x[VEL_Z] - y[VEL_Z]).powi(2);
+            v += y[VEL_X].powi(2) + y[VEL_Z].powi(2);
+            let w = (x[ANG_VEL_Y] - y[ANG_VEL_Y]).abs();
+            dw += w * w;
+            wmax = wmax.max(w);
+        }
+        let (mut dd, mut dn) = (0.0, 0.0);
+        for w in 0..n / 30 {
+            let sum = |f: &[features::FeatureVec], k: usize| -> f64 {
+                f[w * 30..(w + 1) * 30].iter().map(|x| x[k]).sum()
+            };
+            for k in [VEL_X, VEL_Z] {
+                dd += (sum(&a.features, k) - sum(&b.features, k)).powi(2);
+                dn += sum(&b.features, k).powi(2);
+            }
+        }
+        let to_ms = 30.0 * METRES_PER_UNIT;
+        let speed = (v / n as f64).sqrt() * to_ms;
+        let dvel = (dv / n as f64).sqrt() * to_ms;
+        let disp = (dd / dn).sqrt();
+        let ang_rms = (dw / n as f64).sqrt().to_degrees();
+        eprintln!(
+            "{}  {:<5} {:>6} | {:>9.2} {:>5.2} | {:>9.2} {:>9.3} {:>5.1}% | {:>19.2} {:>5.2}",
+            t.take_id,
+            other.format.as_str(),
+            m.num_frames(),
+            fmean,
+            fmax.to_degrees(),
+            speed,
+            dvel,
+            100.0 * disp,
+            ang_rms,
+            wmax.to_degrees()
+        );
+        for (w, x) in worst
+            .iter_mut()
+            .zip([fmean, fmax.to_degrees(), dvel, disp, ang_rms])
+        {
+            *w = w.max(x);
+        }
+    }
+    eprintln!(
+        "worst: facing {:.2}° mean, {:.2}° max; planar velocity {:.3} m/s rms, one-second displacement {:.1}%; angular velocity {:.2}°/frame rms",
+        worst[0],
+        worst[1],
+        worst[2],
+        100.0 * worst[3],
+        worst[4]
+    );
+    // The figure differs, so the hips sway differently; the trajectory agrees.
+    assert!(worst[0] < 3.0 && worst[1] < 15.0, "facing {worst:?}");
+    assert!(
+        worst[2] < 0.3 && worst[3] < 0.15,
+        "planar velocity {worst:?}"
+    );
+    assert!(worst[4] < 2.0, "angular velocity {worst:?}");
 }

@@ -43,6 +43,7 @@ fn tiny_config() -> TrainConfig {
 
 #[test]
 fn train_checkpoint_reload_gives_the_same_loss() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let ds = small_dataset(tmp.path());
     let data = load(&ds, &["train", "val"]).unwrap();
@@ -89,6 +90,7 @@ fn train_checkpoint_reload_gives_the_same_loss() {
 
 #[test]
 fn a_non_finite_loss_stops_with_the_step_and_keeps_the_checkpoint() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let ds = small_dataset(tmp.path());
     let mut data = load(&ds, &["train", "val"]).unwrap();

@@ -1,10 +1,12 @@
 //! `cargo xtask audit`.
 
 use crate::plot::histogram;
+use crate::write_atomically;
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use dataset_audit::{audit, Report, Thresholds};
+use dataset_audit::{audit, Rebuild, Report, Thresholds};
 use std::fmt::Write as _;
+use std::io::Write as _;
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -15,14 +17,21 @@ pub struct AuditArgs {
     /// Rebuild from these sources (as given to `dataset`) and prove the bytes match.
     #[arg(long = "source")]
     sources: Vec<PathBuf>,
-    /// Where to write audit.md, audit.json and the histograms (default: DATA-audit beside the dataset).
+    /// The --asf skeleton the dataset was built with (for the rebuild).
+    #[arg(long)]
+    asf: Option<PathBuf>,
+    /// Where to write audit.md, audit.json, flagged.txt and the histograms (default: DATA-audit beside the dataset).
     #[arg(long)]
     report: Option<PathBuf>,
 }
 
 pub fn run(a: AuditArgs) -> Result<()> {
     let started = std::time::Instant::now();
-    let report = audit(&a.data, &a.sources, Thresholds::default())?;
+    let rebuild = Rebuild {
+        sources: a.sources.clone(),
+        asf: a.asf.clone(),
+    };
+    let report = audit(&a.data, &rebuild, Thresholds::default())?;
     let out = a.report.clone().unwrap_or_else(|| {
         let mut p = a.data.clone().into_os_string();
         p.push("-audit");
@@ -36,6 +45,11 @@ pub fn run(a: AuditArgs) -> Result<()> {
         &serde_json::json!({ "ok": report.ok(), "seconds": seconds, "report": report }),
     )?;
     std::fs::write(out.join("audit.json"), json + "\n").context("writing audit.json")?;
+    let flagged = flagged_list(&report);
+    write_atomically(&out.join("flagged.txt"), |mut f| {
+        f.write_all(flagged.as_bytes())?;
+        Ok(())
+    })?;
     if !report.takes.is_empty() {
         let durations: Vec<f64> = report.takes.iter().map(|t| t.seconds).collect();
         let cv: Vec<f64> = report.takes.iter().map(|t| 100.0 * t.bone_cv).collect();
@@ -78,6 +92,25 @@ pub fn run(a: AuditArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The flagged takes as an exclude list for `cargo xtask dataset --exclude`:
+/// one id per line, the reasons as `#` comments.
+fn flagged_list(r: &Report) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# Takes flagged by `cargo xtask audit` of {} (data quality), one id per line.",
+        r.dir
+    );
+    let _ = writeln!(
+        s,
+        "# Rebuild without them: cargo xtask dataset --exclude flagged.txt (same --source and options)."
+    );
+    for t in r.takes.iter().filter(|t| !t.flags.is_empty()) {
+        let _ = writeln!(s, "{}  # {}", t.take, t.flags.join("; "));
+    }
+    s
 }
 
 fn markdown(r: &Report, seconds: f64) -> String {
@@ -134,6 +167,10 @@ fn markdown(r: &Report, seconds: f64) -> String {
             t.flags.join("; ")
         );
     }
+    let _ = writeln!(
+        s,
+        "\nThe flagged ids are in flagged.txt: `cargo xtask dataset --exclude flagged.txt` rebuilds without them."
+    );
     let _ = writeln!(s, "\nHistograms: take_duration.png, root_speed.png, bone_length_variation.png, foot_height.png");
     s
 }

@@ -5,7 +5,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use mocap_ingest::dataset::{
-    build_dataset, BuildSummary, DatasetOptions, Progress, SplitBy, SPLITS,
+    build_dataset, parse_exclude_list, BuildSummary, DatasetOptions, Progress, SplitBy, SPLITS,
 };
 use mocap_ingest::source::Source;
 use std::collections::BTreeMap;
@@ -59,6 +59,15 @@ pub struct DatasetArgs {
     /// Keep the ASF thorax length (the full ASF skeleton) instead of the BVH-compatible 0.
     #[arg(long)]
     full_asf_skeleton: bool,
+    /// ASF skeleton for AMC files whose own is not found beside them (after
+    /// NN.asf, the only .asf in the folder, an .asf starting with the subject
+    /// number). Meant for one collection; applies to every --source.
+    #[arg(long)]
+    asf: Option<PathBuf>,
+    /// File of take ids to leave out, one per line, `#` comments (the audit's
+    /// flagged.txt works as is). Recorded in the manifest.
+    #[arg(long)]
+    exclude: Option<PathBuf>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -131,6 +140,21 @@ pub fn run(a: DatasetArgs) -> Result<()> {
             eprintln!("frame-rate overrides: {n} rows from {}", t.display());
         }
     }
+    if let Some(f) = &a.exclude {
+        let text = std::fs::read_to_string(resolve(f))
+            .with_context(|| format!("reading the exclude list {}", f.display()))?;
+        opts.exclude = parse_exclude_list(&text);
+    }
+    let asf = match &a.asf {
+        Some(p) => {
+            let p = resolve(p);
+            if !p.is_file() {
+                bail!("--asf {}: no such file", p.display());
+            }
+            Some(p)
+        }
+        None => None,
+    };
     let mut sources = Vec::new();
     for s in &a.sources {
         let path = if s.starts_with("http://") || s.starts_with("https://") {
@@ -138,7 +162,8 @@ pub fn run(a: DatasetArgs) -> Result<()> {
         } else {
             resolve(Path::new(s))
         };
-        sources.push(Source::open(&path).with_context(|| format!("opening source {s}"))?);
+        let source = Source::open(&path).with_context(|| format!("opening source {s}"))?;
+        sources.push(source.with_fallback_asf(asf.clone()));
     }
     let threads = a
         .threads
@@ -181,7 +206,10 @@ pub fn run(a: DatasetArgs) -> Result<()> {
 fn print_summary(s: &BuildSummary, out: &Path, seconds: f64, threads: usize, rss: Option<u64>) {
     println!("dataset written to {}", out.display());
     println!("  files found        {:>10}", s.files);
-    println!("  files read         {:>10}", s.takes);
+    println!("  takes written      {:>10}", s.takes);
+    for ((format, skeleton), n) in &s.takes_by_skeleton {
+        println!("    {format:<4} {skeleton:<33} {n:>6}");
+    }
     println!("  files skipped      {:>10}", s.skipped.len());
     let mut by_code: BTreeMap<&str, usize> = BTreeMap::new();
     for k in &s.skipped {
@@ -189,6 +217,30 @@ fn print_summary(s: &BuildSummary, out: &Path, seconds: f64, threads: usize, rss
     }
     for (code, n) in &by_code {
         println!("    {code:<16} {n:>10}");
+    }
+    let d = &s.duplicates;
+    if d.takes > 0 {
+        let kept: Vec<String> = d
+            .kept_by_format
+            .iter()
+            .map(|(f, n)| format!("{n} {f}"))
+            .collect();
+        println!(
+            "  takes in several copies {:>5}   kept: {}; {} after the preferred copy failed; {} copies not read",
+            d.takes,
+            if kept.is_empty() { "none".into() } else { kept.join(", ") },
+            d.fell_back,
+            d.unread
+        );
+    }
+    if s.excluded > 0 || !s.exclude_unmatched.is_empty() {
+        println!("  excluded files     {:>10}", s.excluded);
+    }
+    if !s.exclude_unmatched.is_empty() {
+        println!(
+            "  exclude-list ids matching no take: {}",
+            s.exclude_unmatched.join(", ")
+        );
     }
     println!(
         "  input frames       {:>10}   (native rate)",
@@ -208,13 +260,20 @@ fn print_summary(s: &BuildSummary, out: &Path, seconds: f64, threads: usize, rss
         "  {seconds:.2} s on {threads} threads, {:.0} input frames/s, peak RSS {rss}",
         s.native_frames as f64 / seconds
     );
-    if !s.skipped.is_empty() {
-        println!("skipped files (also in skipped.json):");
-        for k in s.skipped.iter().take(20) {
+    // Duplicates that were simply not read and excluded files are routine;
+    // list the files that failed.
+    let failed: Vec<_> = s
+        .skipped
+        .iter()
+        .filter(|k| !matches!(k.code.as_str(), "duplicate_take" | "excluded"))
+        .collect();
+    if !failed.is_empty() {
+        println!("files that failed (all skipped files are in skipped.json):");
+        for k in failed.iter().take(20) {
             println!("  {}", k.message);
         }
-        if s.skipped.len() > 20 {
-            println!("  … and {} more", s.skipped.len() - 20);
+        if failed.len() > 20 {
+            println!("  … and {} more", failed.len() - 20);
         }
     }
 }

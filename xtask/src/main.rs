@@ -12,7 +12,7 @@ mod train;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use mocap_ingest::source::{Source, TakeInput};
+use mocap_ingest::source::{FileRef, Source, TakeInput};
 use mocap_ingest::{process_take, Options};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -74,7 +74,7 @@ enum Command {
     },
     /// Read one motion file and print what the pipeline sees.
     Inspect {
-        /// A .bvh file, or an .amc file with its subject's NN.asf beside it.
+        /// A .bvh file, or an .amc file with its ASF beside it.
         file: PathBuf,
         /// Keep the ASF thorax length (the full ASF skeleton).
         #[arg(long)]
@@ -170,7 +170,7 @@ fn run_once(source: &Source, takes: &[TakeInput], threads: usize) -> Result<Thro
                 || source.reader().ok(),
                 |reader, take| {
                     let reader = reader.as_mut()?;
-                    process_take(reader, |n| source.display_name(n), take, &opts)
+                    process_take(source, reader, take, &opts)
                         .ok()
                         .map(|c| c.native_frames)
                 },
@@ -180,7 +180,13 @@ fn run_once(source: &Source, takes: &[TakeInput], threads: usize) -> Result<Thro
     let seconds = start.elapsed().as_secs_f64();
     let bytes = takes
         .iter()
-        .map(|t| t.motion.size + t.asf.as_ref().map_or(0, |a| a.size))
+        .map(|t| {
+            t.motion.size
+                + match &t.asf {
+                    Some(FileRef::Entry(a)) => a.size,
+                    _ => 0,
+                }
+        })
         .sum();
     Ok(Throughput {
         files: takes.len(),
@@ -261,9 +267,16 @@ fn inspect(file: &Path, full_asf_skeleton: bool) -> Result<()> {
     let mut opts = Options::default();
     opts.asf.full_skeleton = full_asf_skeleton;
     let mut reader = source.reader()?;
-    let clip = process_take(&mut reader, |n| source.display_name(n), &take, &opts)?;
+    let clip = process_take(&source, &mut reader, &take, &opts)?;
     println!("file:          {}", file.display());
-    println!("take:          {}", clip.take_id);
+    println!("take:          {} (subject {})", clip.take_id, take.subject);
+    if let Some(asf) = &take.asf {
+        println!(
+            "asf:           {} ({})",
+            source.display_file(asf),
+            take.asf_search
+        );
+    }
     println!("skeleton:      {}", clip.skeleton.name());
     println!(
         "frames:        {} at {} fps → {} at {} fps",

@@ -30,6 +30,7 @@ fn text(o: &Output) -> String {
 
 #[test]
 fn fresh_dataset_passes_and_tampering_fails_by_name() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let src = six_takes(tmp.path());
     let ds = tmp.path().join("ds");

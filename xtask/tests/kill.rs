@@ -28,6 +28,7 @@ fn assert_complete(dir: &Path) -> serde_json::Value {
 
 #[test]
 fn sigkill_midway_keeps_the_previous_dataset() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("ds");
     let bvh = shared("cmu-bvh-sample.zip");

@@ -28,6 +28,7 @@ fn apng_frames(path: &Path) -> (u32, u32, u32) {
 
 #[test]
 fn sample_and_eval_write_what_they_promise() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let ds = tmp.path().join("ds");
     small_dataset(&six_takes(tmp.path()), &ds);

@@ -62,6 +62,7 @@ fn metrics(run: &Path) -> Vec<serde_json::Value> {
 
 #[test]
 fn sigkill_and_resume_reaches_the_uninterrupted_result() {
+    integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
     let ds = dataset(tmp.path());
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));

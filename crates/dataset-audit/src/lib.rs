@@ -185,12 +185,19 @@ fn u64_of(df: &DataFrame, col_name: &str, row: usize) -> Option<u64> {
     df.column(col_name).ok()?.get(row).ok()?.extract::<u64>()
 }
 
-/// Audit `dir`; with `sources`, also rebuild it and compare bytes.
-pub fn audit(
-    dir: &Path,
-    sources: &[PathBuf],
-    thresholds: Thresholds,
-) -> Result<Report, AuditError> {
+/// What a rebuild reads: the collections (as given to `dataset`) and the
+/// fallback ASF (`--asf`), if the dataset was built with one.
+#[derive(Clone, Debug, Default)]
+pub struct Rebuild {
+    /// The collections; none means no rebuild.
+    pub sources: Vec<PathBuf>,
+    /// The `--asf` skeleton.
+    pub asf: Option<PathBuf>,
+}
+
+/// Audit `dir`; with sources in `rebuild`, also rebuild it (with the
+/// manifest's options, exclude list included) and compare bytes.
+pub fn audit(dir: &Path, rebuild: &Rebuild, thresholds: Thresholds) -> Result<Report, AuditError> {
     let mpath = dir.join("manifest.json");
     let text = std::fs::read_to_string(&mpath)
         .map_err(|e| AuditError::Manifest(format!("{}: {e}", mpath.display())))?;
@@ -260,8 +267,8 @@ pub fn audit(
     }
 
     // ---- Reproducibility.
-    if !sources.is_empty() {
-        reproduce(dir, sources, &manifest, &mut r);
+    if !rebuild.sources.is_empty() {
+        reproduce(dir, rebuild, &manifest, &mut r);
     }
     Ok(r)
 }
@@ -729,7 +736,7 @@ fn quality(frames: &LazyFrame, fps: f64, r: &mut Report) -> PolarsResult<()> {
 }
 
 /// Rebuild the dataset with the manifest's options and compare bytes.
-fn reproduce(dir: &Path, sources: &[PathBuf], manifest: &serde_json::Value, r: &mut Report) {
+fn reproduce(dir: &Path, rebuild: &Rebuild, manifest: &serde_json::Value, r: &mut Report) {
     let o = &manifest["options"];
     let mut opts = DatasetOptions::default();
     opts.ingest.target_fps = o["fps"].as_f64().unwrap_or(30.0);
@@ -755,12 +762,29 @@ fn reproduce(dir: &Path, sources: &[PathBuf], manifest: &serde_json::Value, r: &
             }
         }
     }
+    if let Some(ids) = o["exclude"].as_array() {
+        opts.exclude = ids
+            .iter()
+            .filter_map(|v| v.as_str().map(String::from))
+            .collect();
+    }
     let tmp = std::env::temp_dir().join(format!("dataset-audit-{}", std::process::id()));
     let out = tmp.join("rebuild");
     let result = (|| -> Result<(), String> {
-        let srcs = sources
+        if o["asf"].is_string() && rebuild.asf.is_none() {
+            return Err(format!(
+                "the dataset was built with --asf {}: give the audit the same --asf",
+                o["asf"]
+            ));
+        }
+        let srcs = rebuild
+            .sources
             .iter()
-            .map(|p| Source::open(p).map_err(|e| e.to_string()))
+            .map(|p| {
+                Source::open(p)
+                    .map(|s| s.with_fallback_asf(rebuild.asf.clone()))
+                    .map_err(|e| e.to_string())
+            })
             .collect::<Result<Vec<_>, _>>()?;
         let labels: Vec<String> = manifest["sources"]
             .as_array()

@@ -1,16 +1,18 @@
-//! BVH reading. `bvh_anim` parses the hierarchy (its panics contained); the
-//! motion table is parsed here in one validating pass, because `bvh_anim`
-//! does not check the number of values per line, trusts `Frames:` for memory,
-//! reads values as `f32` and gives no line numbers for bad values.
+//! BVH reading, all our own code: the hierarchy by a small validating parser
+//! (every malformed construct is an error with its line, never a panic), the
+//! motion table in one validating pass (values per line, frame count,
+//! non-finite values, line numbers; `Frames:` is never trusted for memory).
 
 use crate::error::{check_text, snippet, ErrorKind};
-use crate::math::{add, Axis, Mat3, Vec3};
-use crate::skeleton::{bvh_names, recognise_bvh, Pose, SkeletonKind, NUM_JOINTS};
+use crate::math::{add, norm, scale, Axis, Mat3, Vec3};
+use crate::skeleton::{
+    bvh_joints, recognise_bvh, BvhJoint, Pose, SkeletonKind, CMU_REFERENCE_LEG,
+    CMU_ROOT_FROM_HIP_JOINTS, HIPS, LEFT_FOOT, LEFT_LEG, LEFT_UP_LEG, NUM_JOINTS, RIGHT_FOOT,
+    RIGHT_LEG, RIGHT_UP_LEG,
+};
 use crate::text::{parse_decimal, tokens};
-use bvh_anim::ChannelType;
-use std::panic::{catch_unwind, AssertUnwindSafe};
 
-/// One BVH joint, reduced to what forward kinematics needs.
+/// One BVH joint (or End Site), reduced to what forward kinematics needs.
 #[derive(Clone, Debug)]
 struct Joint {
     parent: Option<usize>,
@@ -22,13 +24,16 @@ struct Joint {
 }
 
 /// A parsed BVH motion: the kinematic tree and the channel values of every
-/// motion frame (the synthetic T-pose already dropped).
+/// motion frame (the synthetic T-pose or rest pose already dropped).
 #[derive(Clone, Debug)]
 pub struct BvhMotion {
     /// The recognised skeleton.
     pub skeleton: SkeletonKind,
     /// Frame rate stated by the file's `Frame Time`.
     pub declared_fps: f64,
+    /// Factor from the file's length unit to CMU units (1 except for the
+    /// Daz-friendly release, see [`SkeletonKind::Daz`]).
+    pub unit_scale: f64,
     joints: Vec<Joint>,
     /// Joints to evaluate, in an order where parents come first.
     needed: Vec<usize>,
@@ -44,15 +49,19 @@ impl BvhMotion {
     /// Parse and validate a BVH file.
     pub fn parse(bytes: &[u8]) -> Result<BvhMotion, ErrorKind> {
         let tree = Tree::parse(bytes)?;
-        let name_refs: Vec<&str> = tree.names.iter().map(String::as_str).collect();
+        let name_refs: Vec<&str> = tree.names.iter().flatten().map(String::as_str).collect();
         let skeleton = recognise_bvh(&name_refs)
             .map_err(|(closest, missing)| ErrorKind::UnknownSkeleton { closest, missing })?;
         let mut kept = [0usize; NUM_JOINTS];
-        for (k, want) in bvh_names(skeleton).iter().enumerate() {
-            // recognise_bvh guarantees presence.
-            kept[k] = name_refs.iter().position(|n| n == want).unwrap_or(0);
+        for (k, want) in bvh_joints(skeleton).iter().enumerate() {
+            kept[k] = find_joint(&tree, *want)?;
         }
-        let needed = ancestors_closure(&tree.joints, &kept)?;
+        let mut joints = tree.joints;
+        let unit_scale = match skeleton {
+            SkeletonKind::Daz => daz_hips(&mut joints, &mut kept)?,
+            _ => 1.0,
+        };
+        let needed = ancestors_closure(&joints, &kept)?;
         let first_frame = usize::from(skeleton.has_tpose_frame());
         if tree.frames <= first_frame {
             return Err(ErrorKind::NoFrames);
@@ -60,7 +69,8 @@ impl BvhMotion {
         Ok(BvhMotion {
             skeleton,
             declared_fps: 1.0 / tree.frame_time,
-            joints: tree.joints,
+            unit_scale,
+            joints,
             needed,
             kept,
             values: tree.values,
@@ -75,7 +85,8 @@ impl BvhMotion {
         self.num_frames
     }
 
-    /// Global positions of the kept joints at `frame` (0-based, T-pose excluded).
+    /// Global positions of the kept joints at `frame` (0-based, T-pose
+    /// excluded), in CMU units.
     pub fn pose(&self, frame: usize) -> Pose {
         let start = (frame + self.first_frame) * self.num_channels;
         let pos = forward_kinematics(
@@ -83,8 +94,89 @@ impl BvhMotion {
             &self.needed,
             &self.values[start..start + self.num_channels],
         );
-        self.kept.map(|j| pos[j])
+        if self.unit_scale == 1.0 {
+            self.kept.map(|j| pos[j])
+        } else {
+            self.kept.map(|j| scale(pos[j], self.unit_scale))
+        }
     }
+}
+
+/// The index of a kept joint's BVH joint (or End Site); a name that occurs
+/// twice is ambiguous and refused.
+fn find_joint(tree: &Tree, want: BvhJoint) -> Result<usize, ErrorKind> {
+    let name = want.name();
+    let mut hits = tree
+        .names
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| n.as_deref() == Some(name))
+        .map(|(i, _)| i);
+    let (Some(j), None) = (hits.next(), hits.next()) else {
+        return Err(syntax(
+            None,
+            format!("joint name {name} occurs more than once"),
+        ));
+    };
+    match want {
+        BvhJoint::Named(_) => Ok(j),
+        BvhJoint::EndSiteOf(_) => tree
+            .joints
+            .iter()
+            .zip(&tree.names)
+            .position(|(c, n)| n.is_none() && c.parent == Some(j))
+            .ok_or_else(|| syntax(None, format!("joint {name} has no End Site"))),
+    }
+}
+
+/// Adapt a Daz figure: returns its unit scale (a fixed CMU leg length,
+/// hip joint to ankle, [`CMU_REFERENCE_LEG`], over the file's own: the mean
+/// of both legs' thigh + shin offsets) and makes `Hips` the point where a
+/// CMU root sits relative to its hip joints ([`CMU_ROOT_FROM_HIP_JOINTS`]),
+/// fixed in the frame of the figure's `hip` (which lies elsewhere in the
+/// pelvis), as a new channel-less joint.
+fn daz_hips(joints: &mut Vec<Joint>, kept: &mut [usize; NUM_JOINTS]) -> Result<f64, ErrorKind> {
+    let leg = [LEFT_LEG, LEFT_FOOT, RIGHT_LEG, RIGHT_FOOT]
+        .iter()
+        .map(|&k| norm(joints[kept[k]].offset))
+        .sum::<f64>()
+        / 2.0;
+    if !(leg.is_finite() && leg > 1e-6) {
+        return Err(ErrorKind::Degenerate {
+            frame: 0,
+            reason: format!("the Daz figure's legs have length {leg}"),
+        });
+    }
+    let unit_scale = CMU_REFERENCE_LEG / leg;
+    // Each hip joint's rest position in the hip's frame: the offsets from
+    // `hip` down to the thigh (through `lButtock`).
+    let hip = kept[HIPS];
+    let rest = |mut j: usize| {
+        let mut p = [0.0; 3];
+        while j != hip {
+            p = add(p, joints[j].offset);
+            match joints[j].parent {
+                Some(q) => j = q,
+                None => return None,
+            }
+        }
+        Some(p)
+    };
+    let (Some(l), Some(r)) = (rest(kept[LEFT_UP_LEG]), rest(kept[RIGHT_UP_LEG])) else {
+        return Err(syntax(None, "the thighs do not hang from `hip`".into()));
+    };
+    let offset = add(
+        scale(add(l, r), 0.5),
+        scale(CMU_ROOT_FROM_HIP_JOINTS, 1.0 / unit_scale),
+    );
+    joints.push(Joint {
+        parent: Some(hip),
+        offset,
+        position: [None; 3],
+        rotation: Vec::new(),
+    });
+    kept[HIPS] = joints.len() - 1;
+    Ok(unit_scale)
 }
 
 /// Global joint positions for one frame's channel values, evaluating the
@@ -124,7 +216,8 @@ fn forward_kinematics(joints: &[Joint], order: &[usize], v: &[f64]) -> Vec<Vec3>
 /// A BVH file's joint tree and motion values, validated but not yet recognised.
 struct Tree {
     joints: Vec<Joint>,
-    names: Vec<String>,
+    /// Joint names; `None` for an End Site.
+    names: Vec<Option<String>>,
     values: Vec<f64>,
     channels: usize,
     frames: usize,
@@ -136,69 +229,308 @@ impl Tree {
     fn parse(bytes: &[u8]) -> Result<Tree, ErrorKind> {
         check_text(bytes)?;
         let (header_end, motion) = split_motion(bytes)?;
-        let declared_channels = check_channel_lists(&bytes[..header_end])?;
-        // bvh_anim reads the hierarchy; the motion table is ours (below).
-        let mut header = bytes[..header_end].to_vec();
-        header.extend_from_slice(b"\nMOTION\nFrames: 0\nFrame Time: 1\n");
-        let bvh = match catch_unwind(AssertUnwindSafe(|| bvh_anim::from_bytes(&header))) {
-            Ok(Ok(bvh)) => bvh,
-            Ok(Err(e)) => {
-                return Err(ErrorKind::Syntax {
-                    format: "BVH",
-                    line: None,
-                    message: format!("in HIERARCHY: {e}"),
-                })
-            }
-            Err(payload) => return Err(ErrorKind::Panic(panic_message(payload))),
-        };
-        let mut joints = Vec::new();
-        let mut names = Vec::new();
-        let mut channels = 0;
-        for j in bvh.joints() {
-            let data = j.data();
-            let o = data.offset();
-            let mut position = [None; 3];
-            let mut rotation = Vec::new();
-            for c in data.channels() {
-                let i = c.motion_index();
-                channels = channels.max(i + 1);
-                match c.channel_type() {
-                    ChannelType::PositionX => position[0] = Some(i),
-                    ChannelType::PositionY => position[1] = Some(i),
-                    ChannelType::PositionZ => position[2] = Some(i),
-                    ChannelType::RotationX => rotation.push((Axis::X, i)),
-                    ChannelType::RotationY => rotation.push((Axis::Y, i)),
-                    ChannelType::RotationZ => rotation.push((Axis::Z, i)),
-                }
-            }
-            joints.push(Joint {
-                parent: data.parent_index(),
-                offset: [o.x as f64, o.y as f64, o.z as f64],
-                position,
-                rotation,
-            });
-            names.push(String::from_utf8_lossy(data.name().as_ref()).into_owned());
-        }
-        if channels != declared_channels {
-            return Err(ErrorKind::Syntax {
-                format: "BVH",
-                line: None,
-                message: format!(
-                    "hierarchy declares {declared_channels} channels but the parser found {channels}"
-                ),
-            });
-        }
-        let table = parse_motion(bytes, motion, channels, |ch| {
-            channel_owner(&joints, &names, ch)
+        let h = parse_hierarchy(&bytes[..header_end])?;
+        let table = parse_motion(bytes, motion, h.channels, |ch| {
+            channel_owner(&h.joints, &h.names, ch)
         })?;
         Ok(Tree {
-            joints,
-            names,
+            joints: h.joints,
+            names: h.names,
             values: table.values,
-            channels,
+            channels: h.channels,
             frames: table.frames,
             frame_time: table.frame_time,
         })
+    }
+}
+
+/// The parsed `HIERARCHY` section.
+struct Hierarchy {
+    /// Joints and End Sites in file order (depth-first, parents first).
+    joints: Vec<Joint>,
+    /// Joint names; `None` for an End Site.
+    names: Vec<Option<String>>,
+    /// Number of channels (values per motion line).
+    channels: usize,
+}
+
+/// A node being read: which line opened it, whether it has its `{`, OFFSET
+/// and CHANNELS yet.
+struct Open {
+    node: usize,
+    line: usize,
+    has_offset: bool,
+    has_channels: bool,
+}
+
+/// Parse the `HIERARCHY` section (everything before the `MOTION` line).
+///
+/// Our own parser, checking the whole grammar with line numbers:
+/// `HIERARCHY`, one `ROOT name { … }` whose body holds one `OFFSET x y z`,
+/// at most one `CHANNELS n c1 … cn` (the `n` names on the same line), and
+/// nested `JOINT name { … }` or `End Site { OFFSET x y z }` blocks. End Sites
+/// become channel-less nodes without a name. A malformed hierarchy is an
+/// error here, never a panic.
+fn parse_hierarchy(header: &[u8]) -> Result<Hierarchy, ErrorKind> {
+    let mut joints: Vec<Joint> = Vec::new();
+    let mut names: Vec<Option<String>> = Vec::new();
+    let mut stack: Vec<Open> = Vec::new();
+    // A node declared (ROOT/JOINT/End Site) whose `{` has not come yet.
+    let mut pending: Option<Open> = None;
+    let mut started = false;
+    let mut finished = false;
+    let mut channels = 0usize;
+    let mut last_line = 0;
+    let node_name = |names: &[Option<String>], i: usize| -> String {
+        match &names[i] {
+            Some(n) => format!("joint {n}"),
+            None => "End Site".into(),
+        }
+    };
+    for (ln, line) in (1..).zip(header.split(|&b| b == b'\n')) {
+        let toks: Vec<&[u8]> = tokens(line).collect();
+        if !toks.is_empty() {
+            last_line = ln;
+        }
+        let mut i = 0;
+        while i < toks.len() {
+            let t = toks[i];
+            i += 1;
+            let err = |m: String| Err(syntax(Some(ln), m));
+            if let Some(p) = &pending {
+                if t != b"{" {
+                    return err(format!(
+                        "expected `{{` to open the {} declared at line {}, found {:?}",
+                        node_name(&names, p.node),
+                        p.line,
+                        snippet(t)
+                    ));
+                }
+            }
+            if !started {
+                if t != b"HIERARCHY" {
+                    return err(format!("expected HIERARCHY, found {:?}", snippet(t)));
+                }
+                started = true;
+                continue;
+            }
+            if finished {
+                return err(format!(
+                    "unexpected {:?} after the ROOT's closing brace",
+                    snippet(t)
+                ));
+            }
+            match t {
+                b"ROOT" | b"JOINT" => {
+                    let root = t == b"ROOT";
+                    if root && !joints.is_empty() {
+                        return err("a second ROOT (one skeleton per file is supported)".into());
+                    }
+                    if !root && stack.is_empty() {
+                        return err("JOINT outside the ROOT".into());
+                    }
+                    let parent = stack.last().map(|o| o.node);
+                    if parent.is_some_and(|p| names[p].is_none()) {
+                        return err("JOINT inside an End Site".into());
+                    }
+                    let kw = if root { "ROOT" } else { "JOINT" };
+                    let name = match toks.get(i) {
+                        Some(n) if *n != b"{" && *n != b"}" => *n,
+                        _ => return err(format!("{kw} without a name")),
+                    };
+                    i += 1;
+                    if let Some(extra) = toks.get(i).filter(|x| **x != b"{") {
+                        return err(format!(
+                            "{kw} {}: unexpected {:?} after the name",
+                            String::from_utf8_lossy(name),
+                            snippet(extra)
+                        ));
+                    }
+                    joints.push(Joint::new(parent));
+                    names.push(Some(String::from_utf8_lossy(name).into_owned()));
+                    pending = Some(Open::new(joints.len() - 1, ln));
+                }
+                b"End" => {
+                    if toks.get(i) != Some(&&b"Site"[..]) {
+                        return err("`End` must be followed by `Site`".into());
+                    }
+                    i += 1;
+                    let Some(parent) = stack.last().map(|o| o.node) else {
+                        return err("End Site outside a joint".into());
+                    };
+                    if names[parent].is_none() {
+                        return err("End Site inside an End Site".into());
+                    }
+                    joints.push(Joint::new(Some(parent)));
+                    names.push(None);
+                    pending = Some(Open::new(joints.len() - 1, ln));
+                }
+                b"{" => match pending.take() {
+                    Some(p) => stack.push(p),
+                    None => {
+                        return err("unexpected `{` (no ROOT, JOINT or End Site before it)".into())
+                    }
+                },
+                b"}" => {
+                    let Some(open) = stack.pop() else {
+                        return err("unexpected `}` (nothing is open)".into());
+                    };
+                    if !open.has_offset {
+                        return err(format!(
+                            "the {} opened at line {} has no OFFSET",
+                            node_name(&names, open.node),
+                            open.line
+                        ));
+                    }
+                    finished = stack.is_empty();
+                }
+                b"OFFSET" => {
+                    let Some(open) = stack.last_mut() else {
+                        return err("OFFSET outside a joint".into());
+                    };
+                    if open.has_offset {
+                        return err(format!(
+                            "a second OFFSET in the {}",
+                            node_name(&names, open.node)
+                        ));
+                    }
+                    let vals = &toks[i..];
+                    if vals.len() != 3 {
+                        return err(format!("OFFSET needs 3 numbers, found {}", vals.len()));
+                    }
+                    let mut o = [0.0; 3];
+                    for (v, tok) in o.iter_mut().zip(vals) {
+                        *v = parse_decimal(tok)
+                            .filter(|v| v.is_finite())
+                            .ok_or_else(|| ErrorKind::NonNumeric {
+                                line: ln,
+                                token: snippet(tok),
+                            })?;
+                    }
+                    i = toks.len();
+                    open.has_offset = true;
+                    joints[open.node].offset = o;
+                }
+                b"CHANNELS" => {
+                    let Some(open) = stack.last_mut() else {
+                        return err("CHANNELS outside a joint".into());
+                    };
+                    if names[open.node].is_none() {
+                        return err("CHANNELS in an End Site".into());
+                    }
+                    if open.has_channels {
+                        return err(format!(
+                            "a second CHANNELS in the {}",
+                            node_name(&names, open.node)
+                        ));
+                    }
+                    let count_tok = toks.get(i).copied().unwrap_or(b"");
+                    let count: usize = std::str::from_utf8(count_tok)
+                        .ok()
+                        .and_then(|s| s.parse().ok())
+                        .ok_or_else(|| ErrorKind::NonNumeric {
+                            line: ln,
+                            token: snippet(count_tok),
+                        })?;
+                    let listed = &toks[(i + 1).min(toks.len())..];
+                    if listed.len() != count {
+                        return err(format!(
+                            "CHANNELS declares {count} channels but lists {}",
+                            listed.len()
+                        ));
+                    }
+                    let joint = &mut joints[open.node];
+                    for c in listed {
+                        let (axis, position) = channel_type(c).ok_or_else(|| {
+                            syntax(Some(ln), format!("unknown channel {:?}", snippet(c)))
+                        })?;
+                        let twice = if position {
+                            joint.position[axis as usize].is_some()
+                        } else {
+                            joint.rotation.iter().any(|r| r.0 == axis)
+                        };
+                        if twice {
+                            return err(format!("channel {:?} listed twice", snippet(c)));
+                        }
+                        if position {
+                            joint.position[axis as usize] = Some(channels);
+                        } else {
+                            joint.rotation.push((axis, channels));
+                        }
+                        channels += 1;
+                    }
+                    i = toks.len();
+                    open.has_channels = true;
+                }
+                _ => return err(format!("unexpected {:?} in HIERARCHY", snippet(t))),
+            }
+        }
+    }
+    let end = |m: String| Err(syntax(Some(last_line.max(1)), m));
+    if !started {
+        return end("no HIERARCHY".into());
+    }
+    if let Some(p) = pending {
+        return end(format!(
+            "the {} declared at line {} has no body",
+            node_name(&names, p.node),
+            p.line
+        ));
+    }
+    if let Some(open) = stack.last() {
+        return end(format!(
+            "the hierarchy ends inside the {} opened at line {} (a `}}` is missing)",
+            node_name(&names, open.node),
+            open.line
+        ));
+    }
+    if joints.is_empty() {
+        return end("no ROOT".into());
+    }
+    Ok(Hierarchy {
+        joints,
+        names,
+        channels,
+    })
+}
+
+impl Joint {
+    fn new(parent: Option<usize>) -> Joint {
+        Joint {
+            parent,
+            offset: [0.0; 3],
+            position: [None; 3],
+            rotation: Vec::new(),
+        }
+    }
+}
+
+impl Open {
+    fn new(node: usize, line: usize) -> Open {
+        Open {
+            node,
+            line,
+            has_offset: false,
+            has_channels: false,
+        }
+    }
+}
+
+/// `Xposition` → (X, true), `Zrotation` → (Z, false); case-insensitive.
+fn channel_type(t: &[u8]) -> Option<(Axis, bool)> {
+    let (a, rest) = t.split_first()?;
+    let axis = match a.to_ascii_lowercase() {
+        b'x' => Axis::X,
+        b'y' => Axis::Y,
+        b'z' => Axis::Z,
+        _ => return None,
+    };
+    if rest.eq_ignore_ascii_case(b"position") {
+        Some((axis, true))
+    } else if rest.eq_ignore_ascii_case(b"rotation") {
+        Some((axis, false))
+    } else {
+        None
     }
 }
 
@@ -221,7 +553,7 @@ fn ancestors_closure(joints: &[Joint], kept: &[usize]) -> Result<Vec<usize>, Err
         }
     }
     let order: Vec<usize> = (0..joints.len()).filter(|&i| mark[i]).collect();
-    // bvh_anim stores joints depth-first, so a parent precedes its children.
+    // The parser stores joints depth-first, so a parent precedes its children.
     if order
         .iter()
         .any(|&i| joints[i].parent.is_some_and(|p| p >= i))
@@ -234,23 +566,13 @@ fn ancestors_closure(joints: &[Joint], kept: &[usize]) -> Result<Vec<usize>, Err
     Ok(order)
 }
 
-fn channel_owner(joints: &[Joint], names: &[String], ch: usize) -> String {
+fn channel_owner(joints: &[Joint], names: &[Option<String>], ch: usize) -> String {
     joints
         .iter()
         .zip(names)
         .find(|(j, _)| j.position.contains(&Some(ch)) || j.rotation.iter().any(|r| r.1 == ch))
-        .map(|(_, n)| n.clone())
+        .and_then(|(_, n)| n.clone())
         .unwrap_or_else(|| "?".into())
-}
-
-fn panic_message(payload: Box<dyn std::any::Any + Send>) -> String {
-    if let Some(s) = payload.downcast_ref::<&str>() {
-        s.to_string()
-    } else if let Some(s) = payload.downcast_ref::<String>() {
-        s.clone()
-    } else {
-        "unknown panic".into()
-    }
 }
 
 fn syntax(line: Option<usize>, message: String) -> ErrorKind {
@@ -271,34 +593,6 @@ fn split_motion(bytes: &[u8]) -> Result<(usize, usize), ErrorKind> {
         start += l.len() + 1;
     }
     Err(syntax(None, "no MOTION section".into()))
-}
-
-/// Check every `CHANNELS n …` line lists `n` channels; return their sum.
-fn check_channel_lists(header: &[u8]) -> Result<usize, ErrorKind> {
-    let mut total = 0;
-    for (i, line) in header.split(|&b| b == b'\n').enumerate() {
-        let mut tok = tokens(line);
-        if tok.next() != Some(b"CHANNELS") {
-            continue;
-        }
-        let count = tok.next().unwrap_or(b"");
-        let c: usize = std::str::from_utf8(count)
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .ok_or_else(|| ErrorKind::NonNumeric {
-                line: i + 1,
-                token: snippet(count),
-            })?;
-        let listed = tok.count();
-        if listed != c {
-            return Err(syntax(
-                Some(i + 1),
-                format!("CHANNELS declares {c} channels but lists {listed}"),
-            ));
-        }
-        total += c;
-    }
-    Ok(total)
 }
 
 struct MotionTable {

@@ -8,7 +8,7 @@
 //! and its id, so adding a take never moves another.
 
 use crate::features::{feature_names, NUM_FEATURES};
-use crate::source::{subject_of, Format, Source, TakeInput};
+use crate::source::{FileRef, Source, TakeInput};
 use crate::{process_take_with, Clip, ErrorKind, IngestError, Options};
 use arrow_array::{ArrayRef, Float32Array, RecordBatch, StringArray, UInt32Array};
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
@@ -19,7 +19,7 @@ use parquet::schema::types::ColumnPath;
 use rayon::prelude::*;
 use serde::Serialize;
 use sha2::{Digest, Sha256};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -62,6 +62,8 @@ pub struct DatasetOptions {
     pub split_by: SplitBy,
     /// Lower bound applied to every feature's standard deviation.
     pub std_floor: f64,
+    /// Take ids left out (see [`parse_exclude_list`]); their files are not read.
+    pub exclude: BTreeSet<String>,
 }
 
 impl Default for DatasetOptions {
@@ -74,8 +76,20 @@ impl Default for DatasetOptions {
             seed: 0,
             split_by: SplitBy::Take,
             std_floor: 1e-3,
+            exclude: BTreeSet::new(),
         }
     }
+}
+
+/// Parse an exclude list: one take id per line; `#` starts a comment (a whole
+/// line or the rest of one); blank lines are ignored; ids are trimmed.
+/// `cargo xtask audit` writes its `flagged.txt` in this format.
+pub fn parse_exclude_list(text: &str) -> BTreeSet<String> {
+    text.lines()
+        .map(|l| l.split('#').next().unwrap_or("").trim())
+        .filter(|l| !l.is_empty())
+        .map(str::to_string)
+        .collect()
 }
 
 /// A failure that stops the whole build (per-file problems never do).
@@ -108,10 +122,29 @@ pub enum DatasetError {
 pub struct Skipped {
     /// The file.
     pub file: String,
-    /// Short reason code (`truncated`, `missing_asf`, `duplicate_take`, …).
+    /// The take it holds.
+    pub take: String,
+    /// Short reason code (`truncated`, `missing_asf`, `duplicate_take`,
+    /// `duplicate_file`, `excluded`, …).
     pub code: String,
     /// The full message.
     pub message: String,
+    /// The copy of the same take that was kept instead, if any.
+    pub kept: Option<String>,
+}
+
+/// Takes that came in more than one copy (the same CMU trial in several
+/// files) and which copy was kept.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Duplicates {
+    /// Takes with more than one copy.
+    pub takes: usize,
+    /// Of those, kept copies by format (`amc`, `bvh`).
+    pub kept_by_format: BTreeMap<String, usize>,
+    /// Takes whose preferred copy failed and a later copy was kept.
+    pub fell_back: usize,
+    /// Copies never read because an earlier copy was kept.
+    pub unread: usize,
 }
 
 /// What a build did.
@@ -135,6 +168,14 @@ pub struct BuildSummary {
     pub windows_per_split: [usize; 3],
     /// Bytes of input read (motion and skeleton files).
     pub input_bytes: u64,
+    /// Takes written per format and skeleton (`bvh` / `Daz-friendly BVH`).
+    pub takes_by_skeleton: BTreeMap<(String, String), usize>,
+    /// Takes in several copies.
+    pub duplicates: Duplicates,
+    /// Files left out by the exclude list.
+    pub excluded: usize,
+    /// Ids of the exclude list that matched no take.
+    pub exclude_unmatched: Vec<String>,
 }
 
 #[derive(Serialize)]
@@ -205,55 +246,95 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-/// One source's take, with where it comes from.
-struct Job<'a> {
+/// One copy of a take: a source's file, with where it comes from.
+struct Copy<'a> {
     source: &'a Source,
     /// Index of `source` among the build's sources (selects the reader).
     source_index: usize,
     take: TakeInput,
+    /// The motion file's portable name.
+    file: String,
 }
 
-struct Done {
+/// All copies of one take id, the preferred first (ASF/AMC, then path order).
+struct Group<'a> {
+    copies: Vec<Copy<'a>>,
+}
+
+/// One copy read (successfully or not).
+struct Attempt {
     result: Result<Clip, IngestError>,
-    display: String,
-    format: Format,
+    /// Every file read: portable name, size, SHA-256.
     inputs: Vec<InputFile>,
+}
+
+/// A group after reading: the attempts, in the order of the copies (copies
+/// after the last attempt were not read), and which one is kept.
+struct GroupDone {
+    attempts: Vec<Attempt>,
+    kept: Option<usize>,
 }
 
 /// Open readers of one worker, one per source (opened on first use).
 type Readers = Vec<Option<crate::source::SourceReader>>;
 
-fn run_job(job: &Job, readers: &mut Readers, opts: &Options) -> Done {
-    let display = job.source.portable_name(&job.take.motion.name);
+fn run_copy(copy: &Copy, readers: &mut Readers, opts: &Options) -> Attempt {
     let mut inputs = Vec::new();
-    let slot = &mut readers[job.source_index];
+    let slot = &mut readers[copy.source_index];
     let reader = match slot {
         Some(r) => Ok(r),
-        None => job
+        None => copy
             .source
             .reader()
             .map(|r| slot.insert(r))
-            .map_err(|e| IngestError::new(&display, ErrorKind::Io(std::io::Error::other(e)))),
+            .map_err(|e| IngestError::new(&copy.file, ErrorKind::Io(std::io::Error::other(e)))),
     };
     let result = reader.and_then(|reader| {
         // Every file read is recorded (size, SHA-256) for the manifest.
-        let read = |name: &str| {
-            let bytes = reader.read(name)?;
+        let read = |f: &FileRef| {
+            let bytes = reader.read_file(f)?;
             inputs.push(InputFile {
-                path: job.source.portable_name(name),
+                path: copy.source.portable_file(f),
                 size: bytes.len() as u64,
                 sha256: sha256_hex(&bytes),
             });
             Ok(bytes)
         };
-        process_take_with(&job.take, |n| job.source.portable_name(n), read, opts)
+        process_take_with(&copy.take, |f| copy.source.portable_file(f), read, opts)
     });
-    Done {
-        result,
-        display,
-        format: job.take.format,
-        inputs,
+    Attempt { result, inputs }
+}
+
+/// Read the copies of a take in order of preference until one succeeds. A
+/// copy retargeted onto another figure (Daz-friendly BVH) is kept only if no
+/// later copy with the subject's own skeleton reads.
+fn run_group(
+    group: &Group,
+    readers: &mut Readers,
+    opts: &Options,
+    progress: &dyn Progress,
+) -> GroupDone {
+    let mut attempts = Vec::new();
+    let mut kept = None;
+    for copy in &group.copies {
+        let a = run_copy(copy, readers, opts);
+        progress.file_done(&copy.file, a.result.is_ok());
+        let own_skeleton = match &a.result {
+            Ok(clip) => clip.skeleton != crate::SkeletonKind::Daz,
+            Err(_) => false,
+        };
+        if (a.result.is_ok() && kept.is_none()) || own_skeleton {
+            kept = Some(attempts.len());
+        }
+        attempts.push(a);
+        if own_skeleton {
+            break;
+        }
     }
+    for rest in &group.copies[attempts.len()..] {
+        progress.file_done(&rest.file, false);
+    }
+    GroupDone { attempts, kept }
 }
 
 /// Streaming mean/variance (Chan et al. merge), combined in a fixed order.
@@ -294,11 +375,8 @@ fn write_err(path: &Path, e: impl std::fmt::Display) -> DatasetError {
     }
 }
 
-fn parquet_writer(
-    path: &Path,
-    schema: SchemaRef,
-) -> Result<ArrowWriter<BufWriter<File>>, DatasetError> {
-    let file = File::create(path).map_err(|e| write_err(path, e))?;
+fn parquet_writer(path: &Path, schema: SchemaRef) -> Result<ArrowWriter<OutWriter>, DatasetError> {
+    let file = create_out(path)?;
     // Dictionaries only for the repeated id strings; for float features they
     // cost time (interning every value) and save nothing.
     let props = WriterProperties::builder()
@@ -310,7 +388,7 @@ fn parquet_writer(
         .set_max_row_group_row_count(Some(64 * 1024))
         .set_created_by(format!("mocap-ingest {}", env!("CARGO_PKG_VERSION")))
         .build();
-    ArrowWriter::try_new(BufWriter::new(file), schema, Some(props)).map_err(|e| write_err(path, e))
+    ArrowWriter::try_new(file, schema, Some(props)).map_err(|e| write_err(path, e))
 }
 
 fn frames_schema() -> SchemaRef {
@@ -327,19 +405,19 @@ fn frames_schema() -> SchemaRef {
 
 fn frames_batch(
     schema: &SchemaRef,
-    clips: &[&Clip],
+    clips: &[(&Clip, &str)],
 ) -> Result<RecordBatch, arrow_schema::ArrowError> {
-    let rows: usize = clips.iter().map(|c| c.features.len()).sum();
+    let rows: usize = clips.iter().map(|c| c.0.features.len()).sum();
     let mut take = Vec::with_capacity(rows);
     let mut subject = Vec::with_capacity(rows);
     let mut frame = Vec::with_capacity(rows);
     let mut cols: Vec<Vec<f32>> = (0..NUM_FEATURES)
         .map(|_| Vec::with_capacity(rows))
         .collect();
-    for c in clips {
+    for (c, subj) in clips {
         for (t, f) in c.features.iter().enumerate() {
             take.push(c.take_id.as_str());
-            subject.push(subject_of(&c.take_id));
+            subject.push(*subj);
             frame.push(t as u32);
             for (i, col) in cols.iter_mut().enumerate() {
                 col.push(f[i] as f32);
@@ -384,58 +462,64 @@ pub fn build_dataset(
     progress: &dyn Progress,
 ) -> Result<BuildSummary, DatasetError> {
     validate(opts)?;
-    // List and de-duplicate takes: the same take id from several files (e.g.
-    // BVH and ASF/AMC) is kept once, preferring ASF/AMC (CMU's original),
-    // then the first in path order.
-    let mut jobs: Vec<Job> = Vec::new();
+    let mut copies: Vec<Copy> = Vec::new();
     for (source_index, source) in sources.iter().enumerate() {
         for take in source.takes()? {
-            jobs.push(Job {
+            copies.push(Copy {
+                file: source.portable_name(&take.motion.name),
                 source,
                 source_index,
                 take,
             });
         }
     }
-    let files = jobs.len();
-    jobs.sort_by(|a, b| {
-        (
-            &a.take.take_id,
-            std::cmp::Reverse(a.take.format),
-            a.source.portable_name(&a.take.motion.name),
-        )
-            .cmp(&(
-                &b.take.take_id,
-                std::cmp::Reverse(b.take.format),
-                b.source.portable_name(&b.take.motion.name),
-            ))
-    });
+    qualify_colliding_ids(&mut copies);
+    let files = copies.len();
     let mut summary = BuildSummary {
         files,
         ..Default::default()
     };
-    let mut unique: Vec<Job> = Vec::with_capacity(jobs.len());
-    for j in jobs {
-        if let Some(prev) = unique.last() {
-            if prev.take.take_id == j.take.take_id {
-                let file = j.source.portable_name(&j.take.motion.name);
-                summary.skipped.push(Skipped {
-                    message: format!(
-                        "{file}: duplicate take {}, already read from {}",
-                        j.take.take_id,
-                        prev.source.portable_name(&prev.take.motion.name)
-                    ),
-                    file,
-                    code: "duplicate_take".into(),
-                });
-                continue;
-            }
-        }
-        unique.push(j);
-    }
     progress.start(files);
-    for s in &summary.skipped {
-        progress.file_done(&s.file, false);
+
+    // Excluded takes are not read.
+    let (excluded, copies): (Vec<Copy>, Vec<Copy>) = copies
+        .into_iter()
+        .partition(|c| opts.exclude.contains(&c.take.take_id));
+    let matched: BTreeSet<&str> = excluded.iter().map(|c| c.take.take_id.as_str()).collect();
+    summary.exclude_unmatched = opts
+        .exclude
+        .iter()
+        .filter(|id| !matched.contains(id.as_str()))
+        .cloned()
+        .collect();
+    summary.excluded = excluded.len();
+    for c in &excluded {
+        progress.file_done(&c.file, false);
+        summary.skipped.push(Skipped {
+            message: format!("{}: take {} is in the exclude list", c.file, c.take.take_id),
+            file: c.file.clone(),
+            take: c.take.take_id.clone(),
+            code: "excluded".into(),
+            kept: None,
+        });
+    }
+
+    // Copies of one take (the same id) form a group, the preferred copy
+    // first: ASF/AMC (CMU's original), then the first in path order.
+    let mut copies = copies;
+    copies.sort_by(|a, b| {
+        (&a.take.take_id, std::cmp::Reverse(a.take.format), &a.file).cmp(&(
+            &b.take.take_id,
+            std::cmp::Reverse(b.take.format),
+            &b.file,
+        ))
+    });
+    let mut groups: Vec<Group> = Vec::new();
+    for c in copies {
+        match groups.last_mut() {
+            Some(g) if g.copies[0].take.take_id == c.take.take_id => g.copies.push(c),
+            _ => groups.push(Group { copies: vec![c] }),
+        }
     }
 
     let parent = out
@@ -454,8 +538,17 @@ pub fn build_dataset(
         std::fs::remove_dir_all(&staging).map_err(|e| write_err(&staging, e))?;
     }
     std::fs::create_dir_all(&staging).map_err(|e| write_err(&staging, e))?;
+    // The fallback skeleton's file name (one per build in practice).
+    let asf: BTreeSet<String> = sources
+        .iter()
+        .filter_map(|s| {
+            s.fallback_asf()
+                .map(|p| s.portable_file(&FileRef::External(p.into())))
+        })
+        .collect();
     let result = write_all(
-        &unique,
+        &groups,
+        asf.into_iter().next(),
         sources.len(),
         &staging,
         opts,
@@ -469,6 +562,50 @@ pub fn build_dataset(
     }
     swap_into_place(&staging, out)?;
     Ok(summary)
+}
+
+/// Non-CMU ids come from paths inside a collection, so two collections can
+/// give the same one for different files: such ids are qualified with the
+/// collection's name (`dances/salsa/04`), and with its position among the
+/// sources when two collections share a name (`dances#2/salsa/04`).
+fn qualify_colliding_ids(copies: &mut [Copy]) {
+    let mut sources_of: HashMap<&str, BTreeSet<usize>> = HashMap::new();
+    for c in copies.iter().filter(|c| !c.take.cmu_trial) {
+        sources_of
+            .entry(c.take.take_id.as_str())
+            .or_default()
+            .insert(c.source_index);
+    }
+    let colliding: BTreeSet<String> = sources_of
+        .into_iter()
+        .filter(|(_, s)| s.len() > 1)
+        .map(|(id, _)| id.to_string())
+        .collect();
+    if colliding.is_empty() {
+        return;
+    }
+    let mut name_count: HashMap<String, usize> = HashMap::new();
+    for c in copies.iter() {
+        name_count.entry(c.source.collection_name()).or_default();
+    }
+    let mut seen: BTreeSet<(String, usize)> = BTreeSet::new();
+    for c in copies.iter() {
+        if seen.insert((c.source.collection_name(), c.source_index)) {
+            *name_count.entry(c.source.collection_name()).or_default() += 1;
+        }
+    }
+    for c in copies.iter_mut() {
+        if c.take.cmu_trial || !colliding.contains(&c.take.take_id) {
+            continue;
+        }
+        let name = c.source.collection_name();
+        let prefix = if name_count.get(&name).copied().unwrap_or(0) > 1 {
+            format!("{name}#{}", c.source_index + 1)
+        } else {
+            name
+        };
+        c.take.take_id = format!("{prefix}/{}", c.take.take_id);
+    }
 }
 
 fn validate(opts: &DatasetOptions) -> Result<(), DatasetError> {
@@ -509,8 +646,10 @@ fn remove_stale(parent: &Path, name: &str) {
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn write_all(
-    jobs: &[Job],
+    groups: &[Group],
+    asf: Option<String>,
     num_sources: usize,
     dir: &Path,
     opts: &DatasetOptions,
@@ -525,75 +664,154 @@ fn write_all(
     let mut windows_rows: Vec<(String, u32, usize)> = Vec::new();
     let mut inputs: BTreeMap<String, InputFile> = BTreeMap::new();
     let mut moments = Moments::new();
+    // Kept takes by the hashes of the files they were read from: the same
+    // bytes under two ids are one take.
+    let mut kept_content: HashMap<Vec<String>, (String, String)> = HashMap::new();
 
-    for chunk in jobs.chunks(CHUNK) {
-        let done: Vec<Done> = chunk
+    for chunk in groups.chunks(CHUNK) {
+        let done: Vec<GroupDone> = chunk
             .par_iter()
             .map_init(
                 || -> Readers { (0..num_sources).map(|_| None).collect() },
-                |readers, job| {
-                    let d = run_job(job, readers, &opts.ingest);
-                    progress.file_done(&d.display, d.result.is_ok());
-                    d
-                },
+                |readers, group| run_group(group, readers, &opts.ingest, progress),
             )
             .collect();
-        let mut ok: Vec<&Clip> = Vec::new();
-        for d in &done {
-            for i in &d.inputs {
-                inputs.entry(i.path.clone()).or_insert(InputFile {
-                    path: i.path.clone(),
-                    size: i.size,
-                    sha256: i.sha256.clone(),
+        let mut ok: Vec<(&Clip, &str)> = Vec::new();
+        for (group, d) in chunk.iter().zip(&done) {
+            let id = &group.copies[0].take.take_id;
+            let kept = d.kept.map(|i| (&group.copies[i], &d.attempts[i]));
+            let kept_file = kept.map(|k| k.0.file.clone());
+            if group.copies.len() > 1 {
+                let dup = &mut summary.duplicates;
+                dup.takes += 1;
+                if let (Some((copy, _)), Some(i)) = (kept, d.kept) {
+                    *dup.kept_by_format
+                        .entry(copy.take.format.as_str().to_string())
+                        .or_default() += 1;
+                    dup.fell_back += usize::from(d.attempts[..i].iter().any(|a| a.result.is_err()));
+                }
+                dup.unread += group.copies.len() - d.attempts.len();
+            }
+            for (i, (copy, a)) in group.copies.iter().zip(&d.attempts).enumerate() {
+                for f in &a.inputs {
+                    inputs.entry(f.path.clone()).or_insert(InputFile {
+                        path: f.path.clone(),
+                        size: f.size,
+                        sha256: f.sha256.clone(),
+                    });
+                }
+                let k = kept_file.as_deref().unwrap_or_default();
+                let (code, message) = match &a.result {
+                    _ if d.kept == Some(i) => continue,
+                    Err(e) if kept.is_some() => (
+                        e.code(),
+                        format!("{e} (take {id} was read from {k} instead)"),
+                    ),
+                    Err(e) => (e.code(), e.to_string()),
+                    Ok(_) => (
+                        "duplicate_take",
+                        format!(
+                            "{}: duplicate take {id}, read but not kept: the copy {k} has the subject's own skeleton",
+                            copy.file
+                        ),
+                    ),
+                };
+                summary.skipped.push(Skipped {
+                    file: match &a.result {
+                        Err(e) => e.file.clone(),
+                        Ok(_) => copy.file.clone(),
+                    },
+                    take: id.clone(),
+                    code: code.into(),
+                    message,
+                    kept: kept_file.clone(),
                 });
             }
-            match &d.result {
-                Ok(clip) => {
-                    let key = match opts.split_by {
-                        SplitBy::Take => clip.take_id.as_str(),
-                        SplitBy::Subject => subject_of(&clip.take_id),
-                    };
-                    let split = split_of(key, opts.seed, opts.fractions);
-                    let starts = window_starts(clip.features.len(), opts.window, opts.stride);
-                    if starts.is_empty() {
-                        summary.short_takes += 1;
-                    }
-                    if split == 0 {
-                        // Multiplicity of each frame in the train windows.
-                        let mut mult = vec![0u32; clip.features.len()];
-                        for &s in &starts {
-                            mult[s..s + opts.window].iter_mut().for_each(|m| *m += 1);
-                        }
-                        for (f, &m) in clip.features.iter().zip(&mult) {
-                            moments.add(f, m as f64);
-                        }
-                    }
-                    summary.takes += 1;
-                    summary.takes_per_split[split] += 1;
-                    summary.windows_per_split[split] += starts.len();
-                    summary.frames += clip.features.len();
-                    summary.native_frames += clip.native_frames;
-                    for &s in &starts {
-                        windows_rows.push((clip.take_id.clone(), s as u32, split));
-                    }
-                    takes_rows.push(TakeRow {
-                        take: clip.take_id.clone(),
-                        file: d.display.clone(),
-                        format: d.format.as_str(),
-                        skeleton: clip.skeleton.name(),
-                        source_fps: clip.source_fps,
-                        native_frames: clip.native_frames as u32,
-                        frames: clip.features.len() as u32,
-                        split,
-                    });
-                    ok.push(clip);
-                }
-                Err(e) => summary.skipped.push(Skipped {
-                    file: e.file.clone(),
-                    code: e.code().into(),
-                    message: e.to_string(),
-                }),
+            for copy in &group.copies[d.attempts.len()..] {
+                let k = kept_file.clone().unwrap_or_default();
+                summary.skipped.push(Skipped {
+                    message: format!(
+                        "{}: duplicate take {id}, not read: the copy {k} was read",
+                        copy.file
+                    ),
+                    file: copy.file.clone(),
+                    take: id.clone(),
+                    code: "duplicate_take".into(),
+                    kept: kept_file.clone(),
+                });
             }
+            let Some((
+                copy,
+                Attempt {
+                    result: Ok(clip),
+                    inputs: read,
+                },
+            )) = kept
+            else {
+                continue;
+            };
+            let content: Vec<String> = read.iter().map(|i| i.sha256.clone()).collect();
+            if let Some((other, other_file)) = kept_content.get(&content) {
+                summary.skipped.push(Skipped {
+                    message: format!(
+                        "{}: the same bytes as {other_file}, already in the dataset as take {other}",
+                        copy.file
+                    ),
+                    file: copy.file.clone(),
+                    take: id.clone(),
+                    code: "duplicate_file".into(),
+                    kept: Some(other_file.clone()),
+                });
+                continue;
+            }
+            kept_content.insert(content, (id.clone(), copy.file.clone()));
+            let subject = copy.take.subject.as_str();
+            let key = match opts.split_by {
+                SplitBy::Take => clip.take_id.as_str(),
+                SplitBy::Subject => subject,
+            };
+            let split = split_of(key, opts.seed, opts.fractions);
+            let starts = window_starts(clip.features.len(), opts.window, opts.stride);
+            if starts.is_empty() {
+                summary.short_takes += 1;
+            }
+            if split == 0 {
+                // Multiplicity of each frame in the train windows.
+                let mut mult = vec![0u32; clip.features.len()];
+                for &s in &starts {
+                    mult[s..s + opts.window].iter_mut().for_each(|m| *m += 1);
+                }
+                for (f, &m) in clip.features.iter().zip(&mult) {
+                    moments.add(f, m as f64);
+                }
+            }
+            summary.takes += 1;
+            summary.takes_per_split[split] += 1;
+            summary.windows_per_split[split] += starts.len();
+            summary.frames += clip.features.len();
+            summary.native_frames += clip.native_frames;
+            *summary
+                .takes_by_skeleton
+                .entry((
+                    copy.take.format.as_str().to_string(),
+                    clip.skeleton.name().to_string(),
+                ))
+                .or_default() += 1;
+            for &s in &starts {
+                windows_rows.push((clip.take_id.clone(), s as u32, split));
+            }
+            takes_rows.push(TakeRow {
+                take: clip.take_id.clone(),
+                subject: subject.to_string(),
+                file: copy.file.clone(),
+                format: copy.take.format.as_str(),
+                skeleton: clip.skeleton.name(),
+                source_fps: clip.source_fps,
+                native_frames: clip.native_frames as u32,
+                frames: clip.features.len() as u32,
+                split,
+            });
+            ok.push((clip, subject));
         }
         if !ok.is_empty() {
             let batch = frames_batch(&schema, &ok).map_err(|e| write_err(&frames_path, e))?;
@@ -608,40 +826,29 @@ fn write_all(
             files: summary.files,
         });
     }
-    let file = frames_w
+    let mut outputs = Vec::new();
+    let w = frames_w
         .into_inner()
         .map_err(|e| write_err(&frames_path, e))?;
-    finish_file(file, &frames_path)?;
-
-    write_takes(&dir.join("takes.parquet"), &takes_rows)?;
-    write_windows(&dir.join("windows.parquet"), &windows_rows, opts.window)?;
+    outputs.push(finish_file(w, &frames_path)?);
+    outputs.push(write_takes(&dir.join("takes.parquet"), &takes_rows)?);
+    outputs.push(write_windows(
+        &dir.join("windows.parquet"),
+        &windows_rows,
+        opts.window,
+    )?);
     if moments.n == 0.0 {
         return Err(DatasetError::Options(
             "the train split has no windows: use more data, a shorter --window or other split fractions".into(),
         ));
     }
     let stats = stats_of(&moments, opts.std_floor);
-    write_json(&dir.join("stats.json"), &stats)?;
+    outputs.push(write_json(&dir.join("stats.json"), &stats)?);
     summary.skipped.sort_by(|a, b| a.file.cmp(&b.file));
-    write_json(&dir.join("skipped.json"), &summary.skipped)?;
+    outputs.push(write_json(&dir.join("skipped.json"), &summary.skipped)?);
 
-    // The manifest comes last: it hashes every other output.
-    let mut outputs = Vec::new();
-    for f in [
-        "frames.parquet",
-        "takes.parquet",
-        "windows.parquet",
-        "stats.json",
-        "skipped.json",
-    ] {
-        let p = dir.join(f);
-        let bytes = std::fs::read(&p).map_err(|e| write_err(&p, e))?;
-        outputs.push(OutputFile {
-            path: f.into(),
-            size: bytes.len() as u64,
-            sha256: sha256_hex(&bytes),
-        });
-    }
+    // The manifest comes last: it lists every other output with its hash
+    // (computed while writing, so no output is read back).
     let manifest = serde_json::json!({
         "tool": "mocap-ingest",
         "tool_version": env!("CARGO_PKG_VERSION"),
@@ -657,11 +864,14 @@ fn write_all(
             "std_floor": opts.std_floor,
             "full_asf_skeleton": opts.ingest.asf.full_skeleton,
             "frame_rate_overrides": frame_rate_overrides(&opts.ingest),
+            "exclude": opts.exclude,
+            "asf": asf,
         },
         "counts": {
             "files": summary.files,
             "takes": summary.takes,
             "skipped": summary.skipped.len(),
+            "excluded": summary.excluded,
             "short_takes": summary.short_takes,
             "native_frames": summary.native_frames,
             "frames": summary.frames,
@@ -709,23 +919,72 @@ fn stats_of(m: &Moments, floor: f64) -> Stats {
     }
 }
 
-fn finish_file(w: BufWriter<File>, path: &Path) -> Result<(), DatasetError> {
-    let f = w.into_inner().map_err(|e| write_err(path, e.error()))?;
-    f.sync_all().map_err(|e| write_err(path, e))
+/// A writer that hashes (SHA-256) and counts what goes through it, so an
+/// output's manifest entry needs no second read of the file.
+struct Hashing<W> {
+    inner: W,
+    hasher: Sha256,
+    len: u64,
 }
 
-fn write_json(path: &Path, value: &impl Serialize) -> Result<(), DatasetError> {
+impl<W: Write> Write for Hashing<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hasher.update(&buf[..n]);
+        self.len += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// An output file being written: buffered, hashed.
+type OutWriter = Hashing<BufWriter<File>>;
+
+fn create_out(path: &Path) -> Result<OutWriter, DatasetError> {
+    let file = File::create(path).map_err(|e| write_err(path, e))?;
+    Ok(Hashing {
+        inner: BufWriter::new(file),
+        hasher: Sha256::new(),
+        len: 0,
+    })
+}
+
+/// Flush and sync an output; its manifest entry.
+fn finish_file(w: OutWriter, path: &Path) -> Result<OutputFile, DatasetError> {
+    let f = w
+        .inner
+        .into_inner()
+        .map_err(|e| write_err(path, e.error()))?;
+    f.sync_all().map_err(|e| write_err(path, e))?;
+    Ok(OutputFile {
+        path: path
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+        size: w.len,
+        sha256: w
+            .hasher
+            .finalize()
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect(),
+    })
+}
+
+fn write_json(path: &Path, value: &impl Serialize) -> Result<OutputFile, DatasetError> {
     let mut text = serde_json::to_string_pretty(value).map_err(|e| write_err(path, e))?;
     text.push('\n');
-    let mut f = File::create(path).map_err(|e| write_err(path, e))?;
-    f.write_all(text.as_bytes())
+    let mut w = create_out(path)?;
+    w.write_all(text.as_bytes())
         .map_err(|e| write_err(path, e))?;
-    f.sync_all().map_err(|e| write_err(path, e))
+    finish_file(w, path)
 }
 
 /// One row of `takes.parquet`.
 struct TakeRow {
     take: String,
+    subject: String,
     file: String,
     format: &'static str,
     skeleton: &'static str,
@@ -735,7 +994,7 @@ struct TakeRow {
     split: usize,
 }
 
-fn write_takes(path: &Path, rows: &[TakeRow]) -> Result<(), DatasetError> {
+fn write_takes(path: &Path, rows: &[TakeRow]) -> Result<OutputFile, DatasetError> {
     let schema = Arc::new(Schema::new(vec![
         Field::new("take", DataType::Utf8, false),
         Field::new("subject", DataType::Utf8, false),
@@ -755,7 +1014,7 @@ fn write_takes(path: &Path, rows: &[TakeRow]) -> Result<(), DatasetError> {
     };
     let cols: Vec<ArrayRef> = vec![
         strings(|r| &r.take),
-        strings(|r| subject_of(&r.take)),
+        strings(|r| &r.subject),
         strings(|r| &r.file),
         strings(|r| r.format),
         strings(|r| r.skeleton),
@@ -773,7 +1032,7 @@ fn write_windows(
     path: &Path,
     rows: &[(String, u32, usize)],
     window: usize,
-) -> Result<(), DatasetError> {
+) -> Result<OutputFile, DatasetError> {
     let schema = Arc::new(Schema::new(vec![
         Field::new("take", DataType::Utf8, false),
         Field::new("start", DataType::UInt32, false),
@@ -795,7 +1054,11 @@ fn write_windows(
     write_table(path, schema, cols)
 }
 
-fn write_table(path: &Path, schema: SchemaRef, cols: Vec<ArrayRef>) -> Result<(), DatasetError> {
+fn write_table(
+    path: &Path,
+    schema: SchemaRef,
+    cols: Vec<ArrayRef>,
+) -> Result<OutputFile, DatasetError> {
     let batch = RecordBatch::try_new(schema.clone(), cols).map_err(|e| write_err(path, e))?;
     let mut w = parquet_writer(path, schema)?;
     w.write(&batch).map_err(|e| write_err(path, e))?;

@@ -91,11 +91,11 @@ pub enum ErrorKind {
         /// Joints that skeleton needs and the file lacks.
         missing: Vec<String>,
     },
-    /// An AMC file without its subject's ASF.
-    #[error("missing skeleton file: an AMC needs its subject's ASF, expected {expected}")]
+    /// An AMC file whose ASF none of the rules found.
+    #[error("missing skeleton file: no ASF found for this AMC; tried {tried}")]
     MissingAsf {
-        /// Where the ASF was looked for.
-        expected: String,
+        /// Every rule tried, and why it failed.
+        tried: String,
     },
     /// A NaN or infinite value.
     #[error("non-finite value in frame {frame} ({what})")]
@@ -124,9 +124,6 @@ pub enum ErrorKind {
     /// The file holds no motion frames.
     #[error("no motion frames")]
     NoFrames,
-    /// The underlying parser panicked; the panic was contained.
-    #[error("parser panicked: {0}")]
-    Panic(String),
 }
 
 fn at_line(line: Option<usize>) -> String {
@@ -154,7 +151,6 @@ impl ErrorKind {
             ErrorKind::Degenerate { .. } => "degenerate",
             ErrorKind::UnsupportedFrameRate { .. } => "unsupported_frame_rate",
             ErrorKind::NoFrames => "no_frames",
-            ErrorKind::Panic(_) => "panic",
         }
     }
 }

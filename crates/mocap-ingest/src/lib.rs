@@ -27,7 +27,7 @@ pub use skeleton::{Pose, SkeletonKind, JOINT_NAMES, NUM_JOINTS};
 use asf::{AmcMotion, AsfOptions, AsfSkeleton};
 use bvh::BvhMotion;
 use fps::FrameRateTable;
-use source::{Format, SourceReader, TakeInput};
+use source::{FileRef, Format, Source, SourceReader, TakeInput};
 
 /// A parsed motion at its native frame rate.
 #[derive(Clone, Debug)]
@@ -151,27 +151,33 @@ pub fn clip_from_motion(
     })
 }
 
-/// Read one take of a collection and compute its features.
+/// Read one take of `source` and compute its features.
 pub fn process_take(
+    source: &Source,
     reader: &mut SourceReader,
-    display: impl Fn(&str) -> String,
     take: &TakeInput,
     options: &Options,
 ) -> Result<Clip, IngestError> {
-    process_take_with(take, display, |name| reader.read(name), options)
+    process_take_with(
+        take,
+        |f| source.display_file(f),
+        |f| reader.read_file(f),
+        options,
+    )
 }
 
 /// [`process_take`] with the file reading supplied by the caller (`read`
-/// gets each file's name in the collection: the motion file, then, for AMC,
-/// its ASF); `display` names files in errors.
+/// gets each file the take needs: the motion file, then, for AMC, its ASF);
+/// `display` names files in errors.
 pub fn process_take_with(
     take: &TakeInput,
-    display: impl Fn(&str) -> String,
-    mut read: impl FnMut(&str) -> std::io::Result<Vec<u8>>,
+    display: impl Fn(&FileRef) -> String,
+    mut read: impl FnMut(&FileRef) -> std::io::Result<Vec<u8>>,
     options: &Options,
 ) -> Result<Clip, IngestError> {
-    let file = display(&take.motion.name);
-    let bytes = read(&take.motion.name).map_err(|e| IngestError::new(&file, ErrorKind::Io(e)))?;
+    let motion = FileRef::Entry(take.motion.clone());
+    let file = display(&motion);
+    let bytes = read(&motion).map_err(|e| IngestError::new(&file, ErrorKind::Io(e)))?;
     let motion = match take.format {
         Format::Bvh => read_bvh(&file, &bytes)?,
         Format::Amc => {
@@ -179,13 +185,12 @@ pub fn process_take_with(
                 return Err(IngestError::new(
                     &file,
                     ErrorKind::MissingAsf {
-                        expected: take.asf_expected.clone(),
+                        tried: take.asf_search.clone(),
                     },
                 ));
             };
-            let asf_file = display(&asf.name);
-            let asf_bytes =
-                read(&asf.name).map_err(|e| IngestError::new(&asf_file, ErrorKind::Io(e)))?;
+            let asf_file = display(asf);
+            let asf_bytes = read(asf).map_err(|e| IngestError::new(&asf_file, ErrorKind::Io(e)))?;
             read_amc(&file, &bytes, &asf_file, &asf_bytes, options.asf)?
         }
     };

@@ -9,17 +9,10 @@ pub fn xtask() -> Command {
     Command::new(env!("CARGO_BIN_EXE_xtask"))
 }
 
-/// A CMU sample archive from `../shared/cmu`.
+/// A CMU sample archive from `../shared/cmu` (the test calls
+/// `integration_tests::require_samples!()` first).
 pub fn shared(name: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/cmu")
-        .join(name);
-    assert!(
-        p.is_file(),
-        "this test needs the CMU sample {}",
-        p.display()
-    );
-    p
+    integration_tests::sample(name)
 }
 
 /// Six short real takes (02_01 … 02_06, BVH) copied into `tmp/src`.
