@@ -16,7 +16,7 @@
 use crate::error::{check_text, snippet, ErrorKind};
 use crate::math::{add, scale, Axis, Mat3, Vec3};
 use crate::skeleton::{Pose, ASF_BONES, NUM_JOINTS};
-use crate::text::parse_decimal;
+use crate::text::{parse_decimal, tokens};
 
 /// How to build the skeleton from an ASF.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -81,15 +81,19 @@ fn amc_err(line: usize, message: impl Into<String>) -> ErrorKind {
 }
 
 fn number(line: usize, tok: &str) -> Result<f64, ErrorKind> {
-    match parse_decimal(tok.as_bytes()) {
+    number_bytes(line, tok.as_bytes())
+}
+
+fn number_bytes(line: usize, tok: &[u8]) -> Result<f64, ErrorKind> {
+    match parse_decimal(tok) {
         Some(v) if v.is_finite() => Ok(v),
         Some(_) => Err(ErrorKind::NonFinite {
             frame: 0,
-            what: format!("value {tok:?} at line {line}"),
+            what: format!("value {:?} at line {line}", String::from_utf8_lossy(tok)),
         }),
         None => Err(ErrorKind::NonNumeric {
             line,
-            token: snippet(tok.as_bytes()),
+            token: snippet(tok),
         }),
     }
 }
@@ -397,7 +401,6 @@ impl AmcMotion {
     /// Parse an AMC file against its subject's skeleton.
     pub fn parse(bytes: &[u8], skeleton: AsfSkeleton) -> Result<AmcMotion, ErrorKind> {
         check_text(bytes)?;
-        let text = String::from_utf8_lossy(bytes);
         let per_frame = skeleton.values_per_frame;
         let mut degrees = skeleton.degrees;
         let mut values: Vec<f64> = Vec::new();
@@ -429,22 +432,36 @@ impl AmcMotion {
             }
         };
 
-        for (n, toks) in text_lines(&text) {
+        // Byte-level and allocation-free: this loop sees every line of every
+        // AMC file. Lines of a frame come in the same order frame after
+        // frame, so each position remembers its bone.
+        let mut slot_at: Vec<usize> = Vec::new();
+        let mut line_in_frame = 0usize;
+        for (n, raw) in (1..).zip(bytes.split(|&b| b == b'\n')) {
+            let line = match raw.iter().position(|&b| b == b'#') {
+                Some(i) => &raw[..i],
+                None => raw,
+            };
+            let mut toks = tokens(line);
+            let Some(first) = toks.next() else {
+                continue;
+            };
             last_line = n;
-            let first = toks[0];
-            if let Some(kw) = first.strip_prefix(':') {
-                match kw.to_ascii_uppercase().as_str() {
-                    "DEGREES" => degrees = true,
-                    "RADIANS" => degrees = false,
-                    _ => {}
+            let name = || String::from_utf8_lossy(first);
+            if let Some(kw) = first.strip_prefix(b":") {
+                if kw.eq_ignore_ascii_case(b"DEGREES") {
+                    degrees = true;
+                } else if kw.eq_ignore_ascii_case(b"RADIANS") {
+                    degrees = false;
                 }
                 continue;
             }
-            if toks.len() == 1 && first.bytes().all(|b| b.is_ascii_digit()) {
+            if first.iter().all(u8::is_ascii_digit) && toks.clone().next().is_none() {
                 finish(&seen, frame, n - 1, false)?;
-                let num: usize = first
-                    .parse()
-                    .map_err(|_| amc_err(n, format!("bad frame number {first:?}")))?;
+                let num: usize = std::str::from_utf8(first)
+                    .ok()
+                    .and_then(|t| t.parse().ok())
+                    .ok_or_else(|| amc_err(n, format!("bad frame number {:?}", name())))?;
                 let expected = num_frames + 1;
                 if num != expected {
                     return Err(amc_err(
@@ -456,28 +473,52 @@ impl AmcMotion {
                 values.resize(num_frames * per_frame, 0.0);
                 seen.iter_mut().for_each(|s| *s = false);
                 frame = Some((num, n));
+                line_in_frame = 0;
                 continue;
             }
             if frame.is_none() {
                 return Err(amc_err(
                     n,
-                    format!("{first:?} before the first frame number"),
+                    format!("{:?} before the first frame number", name()),
                 ));
             }
             let base = (num_frames - 1) * per_frame;
-            let (slot, offset, count) = if first == "root" {
-                (0, 0, skeleton.root_order.len())
-            } else {
-                match skeleton.bones.iter().position(|b| b.name == first) {
-                    Some(i) => (
-                        i + 1,
-                        skeleton.bones[i].value_offset,
-                        skeleton.bones[i].dofs.len(),
-                    ),
-                    None => return Err(amc_err(n, format!("unknown bone {first:?}"))),
+            let is_slot = |slot: usize| match slot {
+                0 => first == b"root",
+                i => skeleton.bones[i - 1].name.as_bytes() == first,
+            };
+            let slot = match slot_at.get(line_in_frame) {
+                Some(&s) if is_slot(s) => s,
+                _ => {
+                    let s = if first == b"root" {
+                        0
+                    } else {
+                        match skeleton
+                            .bones
+                            .iter()
+                            .position(|b| b.name.as_bytes() == first)
+                        {
+                            Some(i) => i + 1,
+                            None => return Err(amc_err(n, format!("unknown bone {:?}", name()))),
+                        }
+                    };
+                    if line_in_frame < slot_at.len() {
+                        slot_at[line_in_frame] = s;
+                    } else {
+                        slot_at.push(s);
+                    }
+                    s
                 }
             };
-            let found = toks.len() - 1;
+            line_in_frame += 1;
+            let (offset, count) = match slot {
+                0 => (0, skeleton.root_order.len()),
+                i => (
+                    skeleton.bones[i - 1].value_offset,
+                    skeleton.bones[i - 1].dofs.len(),
+                ),
+            };
+            let found = toks.clone().count();
             if found != count {
                 return Err(ErrorKind::ChannelCount {
                     line: n,
@@ -485,11 +526,11 @@ impl AmcMotion {
                     found,
                 });
             }
-            for (k, t) in toks[1..].iter().enumerate() {
-                let v = number(n, t).map_err(|e| match e {
+            for (k, t) in toks.enumerate() {
+                let v = number_bytes(n, t).map_err(|e| match e {
                     ErrorKind::NonFinite { what, .. } => ErrorKind::NonFinite {
                         frame: num_frames - 1,
-                        what: format!("bone {first}, {what}"),
+                        what: format!("bone {}, {what}", name()),
                     },
                     e => e,
                 })?;

@@ -1,7 +1,7 @@
 //! Small, fast text helpers shared by the BVH and AMC readers.
 
 /// Whitespace-separated tokens of a line.
-pub(crate) fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
+pub(crate) fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> + Clone {
     line.split(|b| b.is_ascii_whitespace())
         .filter(|t| !t.is_empty())
 }
