@@ -5,9 +5,10 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use mocap_ingest::dataset::{
-    build_dataset, parse_exclude_list, BuildSummary, DatasetOptions, Progress, SplitBy, SPLITS,
+    build_dataset, parse_exclude_list, BuildSummary, DatasetOptions, Encoding, Progress, SplitBy,
+    SPLITS,
 };
-use mocap_ingest::source::Source;
+use mocap_ingest::source::{FileRef, Source};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -80,6 +81,10 @@ pub struct DatasetArgs {
     /// Print one machine-readable line for bench-dataset.
     #[arg(long, hide = true)]
     bench_line: bool,
+    /// Parquet compression and float encoding (bench-dataset --encodings
+    /// compares them): snappy, snappy_byte_stream_split, zstd, zstd_byte_stream_split.
+    #[arg(long, hide = true)]
+    encoding: Option<String>,
 }
 
 struct Bar(ProgressBar);
@@ -139,6 +144,10 @@ pub fn run(a: DatasetArgs) -> Result<()> {
         if !a.quiet {
             eprintln!("frame-rate overrides: {n} rows from {}", t.display());
         }
+    }
+    if let Some(e) = &a.encoding {
+        opts.encoding =
+            Encoding::from_name(e).with_context(|| format!("unknown --encoding {e}"))?;
     }
     if let Some(f) = &a.exclude {
         let text = std::fs::read_to_string(resolve(f))
@@ -285,77 +294,239 @@ fn peak_rss_kib() -> Option<u64> {
     line.split_whitespace().nth(1)?.parse().ok()
 }
 
-pub fn bench(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
-    let sources = if sources.is_empty() {
-        shared_samples()?
-    } else {
-        sources
-    };
+/// One `dataset --bench-line` run in a fresh process.
+struct BenchRun {
+    seconds: f64,
+    native_frames: u64,
+    input_bytes: u64,
+    rss_kib: u64,
+}
+
+/// Run `dataset` on `src` into `out`, `repeat` times; the fastest run.
+fn bench_runs(
+    exe: &Path,
+    src: &Path,
+    out: &Path,
+    threads: usize,
+    extra: &[&str],
+    repeat: usize,
+) -> Result<BenchRun> {
+    let mut best: Option<BenchRun> = None;
+    for _ in 0..repeat.max(1) {
+        let o = Command::new(exe)
+            .args(["dataset", "--bench-line", "--threads", &threads.to_string()])
+            .args(extra)
+            .arg("--source")
+            .arg(src)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .context("running dataset")?;
+        if !o.status.success() {
+            bail!("dataset failed: {}", String::from_utf8_lossy(&o.stderr));
+        }
+        let text = String::from_utf8_lossy(&o.stdout);
+        let line = text
+            .lines()
+            .find(|l| l.starts_with("BENCH "))
+            .context("no BENCH line")?;
+        let field = |k: &str| -> f64 {
+            line.split_whitespace()
+                .find_map(|f| f.strip_prefix(k)?.strip_prefix('='))
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0.0)
+        };
+        let r = BenchRun {
+            seconds: field("seconds"),
+            native_frames: field("native_frames") as u64,
+            input_bytes: field("input_bytes") as u64,
+            rss_kib: field("peak_rss_kib") as u64,
+        };
+        if best.as_ref().is_none_or(|b| r.seconds < b.seconds) {
+            best = Some(r);
+        }
+    }
+    best.context("no run")
+}
+
+/// Copies of the takes per subject for the scaled benchmark.
+const SCALE: usize = 10;
+
+/// `SCALE` copies of an ASF/AMC collection in `dir`, each subject under a new
+/// three-digit number (145 and up, past CMU's last subject), with a
+/// frame-rate table giving each copy its original's rate. AMC files are
+/// written once and hard-linked for the other copies; each copy's ASF ends
+/// with its own `#` comment, so no two copies are the same bytes (the
+/// dataset keeps one take per content). Returns the folder and the
+/// frame-rate CSV.
+fn scaled_collection(src: &Path, dir: &Path) -> Result<(PathBuf, PathBuf)> {
+    let source = Source::open(src)?;
+    let mut reader = source.reader()?;
+    let takes = source.takes()?;
+    let subjects: std::collections::BTreeSet<&str> =
+        takes.iter().map(|t| t.subject.as_str()).collect();
+    let index: BTreeMap<&str, usize> = subjects.iter().enumerate().map(|(i, s)| (*s, i)).collect();
+    if 145 + SCALE * subjects.len() > 999 {
+        bail!("too many subjects to scale {}", src.display());
+    }
+    let root = dir.join(format!("asfamc-x{SCALE}"));
+    let table = dir.join(format!("asfamc-x{SCALE}-fps.csv"));
+    let builtin = mocap_ingest::fps::FrameRateTable::default();
+    let mut csv = String::from("take,fps\n");
+    for t in &takes {
+        let (Some(asf), Some((_, trial))) = (&t.asf, t.take_id.split_once('_')) else {
+            bail!("{}: not a CMU ASF/AMC take", t.motion.name);
+        };
+        let rate = builtin.resolve(&t.take_id, None);
+        let mut first_amc: Option<PathBuf> = None;
+        for k in 0..SCALE {
+            let n = 145 + k * subjects.len() + index[t.subject.as_str()];
+            let sub = root.join(n.to_string());
+            std::fs::create_dir_all(&sub)?;
+            csv.push_str(&format!("{n}_{trial},{rate}\n"));
+            let amc = sub.join(format!("{n}_{trial}.amc"));
+            match &first_amc {
+                Some(orig) if std::fs::hard_link(orig, &amc).is_ok() => {}
+                _ => {
+                    let bytes = reader.read_file(&FileRef::Entry(t.motion.clone()))?;
+                    std::fs::write(&amc, bytes)
+                        .with_context(|| format!("writing {}", amc.display()))?;
+                    first_amc.get_or_insert(amc);
+                }
+            }
+            let asf_path = sub.join(format!("{n}.asf"));
+            if !asf_path.exists() {
+                let mut bytes = reader.read_file(asf)?;
+                bytes.extend_from_slice(format!("\n# bench copy {k} as subject {n}\n").as_bytes());
+                std::fs::write(&asf_path, bytes)
+                    .with_context(|| format!("writing {}", asf_path.display()))?;
+            }
+        }
+    }
+    std::fs::write(&table, csv)?;
+    Ok((root, table))
+}
+
+fn print_bench_row(name: &str, threads: usize, r: &BenchRun) {
+    println!(
+        "{:<28} {:>7} {:>9.1} {:>10} {:>8.3} {:>8.1} {:>12.0} {:>6.0} MiB",
+        name,
+        threads,
+        r.input_bytes as f64 / 1e6,
+        r.native_frames,
+        r.seconds,
+        r.input_bytes as f64 / 1e6 / r.seconds,
+        r.native_frames as f64 / r.seconds,
+        r.rss_kib as f64 / 1024.0
+    );
+}
+
+/// `cargo xtask bench-dataset`: each source alone with 1 thread and all
+/// cores; with the default sources also the ASF/AMC sample at 10× (peak RSS
+/// must not grow with the collection); with `encodings`, the 10× build once
+/// per table encoding, with `frames.parquet`'s size and polars' read time.
+pub fn bench(sources: Vec<PathBuf>, repeat: usize, encodings: bool) -> Result<()> {
+    let default = sources.is_empty();
+    let sources = if default { shared_samples()? } else { sources };
     let exe = std::env::current_exe().context("locating the xtask binary")?;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let tmp = std::env::temp_dir().join(format!("xtask-bench-dataset-{}", std::process::id()));
-    println!("whole `dataset` pipeline (list, read, FK, features, Parquet, stats, manifest), best of {repeat}, each run a fresh process");
-    println!(
-        "{:<28} {:>7} {:>9} {:>10} {:>8} {:>8} {:>12} {:>9}",
-        "source", "threads", "MB", "frames", "seconds", "MB/s", "frames/s", "peak RSS"
-    );
-    for src in &sources {
-        for threads in [1, cores] {
-            let mut best: Option<(f64, u64, u64, u64)> = None;
-            for _ in 0..repeat.max(1) {
-                let out = Command::new(&exe)
-                    .args([
-                        "dataset",
-                        "--bench-line",
-                        "--threads",
-                        &threads.to_string(),
-                        "--source",
-                    ])
-                    .arg(src)
-                    .arg("--out")
-                    .arg(tmp.join("out"))
-                    .output()
-                    .context("running dataset")?;
-                if !out.status.success() {
-                    bail!("dataset failed: {}", String::from_utf8_lossy(&out.stderr));
-                }
-                let text = String::from_utf8_lossy(&out.stdout);
-                let line = text
-                    .lines()
-                    .find(|l| l.starts_with("BENCH "))
-                    .context("no BENCH line")?;
-                let field = |k: &str| -> Option<f64> {
-                    line.split_whitespace()
-                        .find_map(|f| f.strip_prefix(k)?.strip_prefix('='))
-                        .and_then(|v| v.parse().ok())
-                };
-                let r = (
-                    field("seconds").unwrap_or(f64::NAN),
-                    field("native_frames").unwrap_or(0.0) as u64,
-                    field("input_bytes").unwrap_or(0.0) as u64,
-                    field("peak_rss_kib").unwrap_or(0.0) as u64,
-                );
-                if best.is_none_or(|b| r.0 < b.0) {
-                    best = Some(r);
+    let result = (|| -> Result<()> {
+        println!("whole `dataset` pipeline (list, read, FK, features, Parquet, stats, manifest), best of {repeat}, each run a fresh process");
+        println!(
+            "{:<28} {:>7} {:>9} {:>10} {:>8} {:>8} {:>12} {:>9}",
+            "source", "threads", "MB", "frames", "seconds", "MB/s", "frames/s", "peak RSS"
+        );
+        let mut rss_1x = None;
+        for src in &sources {
+            for threads in [1, cores] {
+                let r = bench_runs(&exe, src, &tmp.join("out"), threads, &[], repeat)?;
+                print_bench_row(&file_name(src), threads, &r);
+                if threads == cores && file_name(src).contains("asfamc") {
+                    rss_1x = Some(r.rss_kib);
                 }
             }
-            let Some((secs, frames, bytes, rss)) = best else {
-                continue;
-            };
-            let name = file_name(src);
+        }
+        let asfamc = sources.iter().find(|s| file_name(s).contains("asfamc"));
+        let (Some(asfamc), true) = (asfamc, default || encodings) else {
+            return Ok(());
+        };
+        let (big, fps) = scaled_collection(asfamc, &tmp)?;
+        let fps = fps.display().to_string();
+        let r = bench_runs(
+            &exe,
+            &big,
+            &tmp.join("out"),
+            cores,
+            &["--fps-table", &fps],
+            repeat,
+        )?;
+        print_bench_row(&format!("asfamc sample ×{SCALE}"), cores, &r);
+        if let Some(one) = rss_1x {
             println!(
-                "{:<28} {:>7} {:>9.1} {:>10} {:>8.3} {:>8.1} {:>12.0} {:>6.0} MiB",
-                name,
-                threads,
-                bytes as f64 / 1e6,
-                frames,
-                secs,
-                bytes as f64 / 1e6 / secs,
-                frames as f64 / secs,
-                rss as f64 / 1024.0
+                "peak RSS at ×{SCALE} / ×1 (ASF/AMC sample, {cores} threads): {:.0} / {:.0} MiB",
+                r.rss_kib as f64 / 1024.0,
+                one as f64 / 1024.0
             );
         }
-    }
+        if encodings {
+            bench_encodings(&exe, &big, &fps, &tmp, cores, repeat)?;
+        }
+        Ok(())
+    })();
     let _ = std::fs::remove_dir_all(&tmp);
+    result
+}
+
+/// The scaled build once per encoding: size of `frames.parquet`, build time,
+/// and the time polars takes to read all of it (best of `repeat`).
+fn bench_encodings(
+    exe: &Path,
+    big: &Path,
+    fps: &str,
+    tmp: &Path,
+    cores: usize,
+    repeat: usize,
+) -> Result<()> {
+    use polars::prelude::{LazyFrame, PlRefPath};
+    println!(
+        "\nframes.parquet encodings (ASF/AMC sample ×{SCALE}, {cores} threads, best of {repeat}):"
+    );
+    println!(
+        "{:<26} {:>9} {:>13} {:>14} {:>9}",
+        "encoding", "MB", "build s", "polars read s", "peak RSS"
+    );
+    for e in Encoding::ALL {
+        let out = tmp.join(format!("out-{}", e.name()));
+        let r = bench_runs(
+            exe,
+            big,
+            &out,
+            cores,
+            &["--fps-table", fps, "--encoding", e.name()],
+            repeat,
+        )?;
+        let frames = out.join("frames.parquet");
+        let size = std::fs::metadata(&frames)?.len();
+        let mut read = f64::INFINITY;
+        for _ in 0..repeat.max(1) {
+            let t = Instant::now();
+            let df = LazyFrame::scan_parquet(
+                PlRefPath::new(frames.display().to_string()),
+                Default::default(),
+            )?
+            .collect()?;
+            read = read.min(t.elapsed().as_secs_f64());
+            drop(df);
+        }
+        println!(
+            "{:<26} {:>9.1} {:>13.2} {:>14.3} {:>6.0} MiB",
+            e.name(),
+            size as f64 / 1e6,
+            r.seconds,
+            read,
+            r.rss_kib as f64 / 1024.0
+        );
+    }
     Ok(())
 }

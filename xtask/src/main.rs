@@ -53,7 +53,8 @@ enum Command {
         autograd: bool,
     },
     /// Benchmark `dataset` end to end on the CMU samples, 1 thread and all
-    /// cores, each in a fresh process (reports peak RSS).
+    /// cores, and the ASF/AMC sample at 10×, each in a fresh process
+    /// (reports peak RSS).
     BenchDataset {
         /// Directories, .zip archives (default: the two samples in ../shared/cmu, each alone).
         #[arg(long = "source")]
@@ -61,6 +62,10 @@ enum Command {
         /// Repetitions per configuration (the best is reported).
         #[arg(long, default_value_t = 3)]
         repeat: usize,
+        /// Also build the ASF/AMC sample at 10× once per Parquet encoding
+        /// (snappy/zstd, plain/byte-stream-split floats): sizes and read times.
+        #[arg(long)]
+        encodings: bool,
     },
     /// Benchmark reading + forward kinematics + features over CMU collections,
     /// single-threaded and with all cores.
@@ -94,7 +99,11 @@ fn main() -> Result<()> {
             steps,
             autograd,
         } => train::bench(&batch, steps.max(1), autograd),
-        Command::BenchDataset { sources, repeat } => dataset::bench(sources, repeat),
+        Command::BenchDataset {
+            sources,
+            repeat,
+            encodings,
+        } => dataset::bench(sources, repeat, encodings),
         Command::BenchIngest { sources, repeat } => bench_ingest(sources, repeat),
         Command::Inspect {
             file,
@@ -134,9 +143,11 @@ pub(crate) fn file_name(path: &Path) -> String {
     )
 }
 
-/// The shared CMU samples beside the repository.
+/// The shared CMU samples beside the repository (or in `CMU_SHARED_DIR`).
 pub(crate) fn shared_samples() -> Result<Vec<PathBuf>> {
-    let dir = workspace_root().join("../shared/cmu");
+    let dir = std::env::var_os("CMU_SHARED_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join("../shared/cmu"));
     let files = ["cmu-bvh-sample.zip", "cmu-asfamc-sample.zip"].map(|f| dir.join(f));
     if let Some(missing) = files.iter().find(|f| !f.is_file()) {
         bail!(

@@ -3,7 +3,7 @@
 //! check fails. Data-quality findings are listed per take.
 
 use mocap_ingest::dataset::{
-    build_dataset, sha256_hex, DatasetOptions, NoProgress, SplitBy, Stats, SPLITS,
+    build_dataset, sha256_hex, DatasetOptions, Encoding, NoProgress, SplitBy, Stats, SPLITS,
 };
 use mocap_ingest::features::{feature_names, ANG_VEL_Y, VEL_X, VEL_Z};
 use mocap_ingest::skeleton::{JOINT_NAMES, JOINT_PARENTS, NUM_JOINTS};
@@ -761,6 +761,9 @@ fn reproduce(dir: &Path, rebuild: &Rebuild, manifest: &serde_json::Value, r: &mu
                 opts.ingest.frame_rates.set(k, f);
             }
         }
+    }
+    if let Some(e) = o["encoding"].as_str().and_then(Encoding::from_name) {
+        opts.encoding = e;
     }
     if let Some(ids) = o["exclude"].as_array() {
         opts.exclude = ids

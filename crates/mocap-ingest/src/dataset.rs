@@ -13,7 +13,7 @@ use crate::{process_take_with, Clip, ErrorKind, IngestError, Options};
 use arrow_array::{ArrayRef, Float32Array, RecordBatch, StringArray, UInt32Array};
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use parquet::arrow::ArrowWriter;
-use parquet::basic::Compression;
+use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
 use parquet::schema::types::ColumnPath;
 use rayon::prelude::*;
@@ -45,6 +45,46 @@ pub enum SplitBy {
     Subject,
 }
 
+/// How the Parquet tables are compressed and how their float columns are
+/// encoded (`bench-dataset --encodings` compares them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Encoding {
+    /// Snappy, plain floats (format 1's choice).
+    Snappy,
+    /// Snappy, floats byte-stream-split.
+    SnappyByteStreamSplit,
+    /// Zstandard (level 1), plain floats.
+    Zstd,
+    /// Zstandard (level 1), floats byte-stream-split.
+    ZstdByteStreamSplit,
+}
+
+impl Encoding {
+    /// Every encoding, for the benchmark.
+    pub const ALL: [Encoding; 4] = [
+        Encoding::Snappy,
+        Encoding::SnappyByteStreamSplit,
+        Encoding::Zstd,
+        Encoding::ZstdByteStreamSplit,
+    ];
+
+    /// Its name (as in the manifest).
+    pub fn name(self) -> &'static str {
+        match self {
+            Encoding::Snappy => "snappy",
+            Encoding::SnappyByteStreamSplit => "snappy_byte_stream_split",
+            Encoding::Zstd => "zstd",
+            Encoding::ZstdByteStreamSplit => "zstd_byte_stream_split",
+        }
+    }
+
+    /// The encoding of a name.
+    pub fn from_name(name: &str) -> Option<Encoding> {
+        Encoding::ALL.into_iter().find(|e| e.name() == name)
+    }
+}
+
 /// Options of a dataset build (the paper's values by default).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DatasetOptions {
@@ -64,6 +104,8 @@ pub struct DatasetOptions {
     pub std_floor: f64,
     /// Take ids left out (see [`parse_exclude_list`]); their files are not read.
     pub exclude: BTreeSet<String>,
+    /// Compression and float encoding of the tables.
+    pub encoding: Encoding,
 }
 
 impl Default for DatasetOptions {
@@ -77,6 +119,7 @@ impl Default for DatasetOptions {
             split_by: SplitBy::Take,
             std_floor: 1e-3,
             exclude: BTreeSet::new(),
+            encoding: Encoding::Snappy,
         }
     }
 }
@@ -375,19 +418,39 @@ fn write_err(path: &Path, e: impl std::fmt::Display) -> DatasetError {
     }
 }
 
-fn parquet_writer(path: &Path, schema: SchemaRef) -> Result<ArrowWriter<OutWriter>, DatasetError> {
+fn parquet_writer(
+    path: &Path,
+    schema: SchemaRef,
+    encoding: Encoding,
+) -> Result<ArrowWriter<OutWriter>, DatasetError> {
     let file = create_out(path)?;
+    let (compression, split_floats) = match encoding {
+        Encoding::Snappy => (Compression::SNAPPY, false),
+        Encoding::SnappyByteStreamSplit => (Compression::SNAPPY, true),
+        Encoding::Zstd => (Compression::ZSTD(ZstdLevel::default()), false),
+        Encoding::ZstdByteStreamSplit => (Compression::ZSTD(ZstdLevel::default()), true),
+    };
     // Dictionaries only for the repeated id strings; for float features they
     // cost time (interning every value) and save nothing.
-    let props = WriterProperties::builder()
-        .set_compression(Compression::SNAPPY)
+    let mut props = WriterProperties::builder()
+        .set_compression(compression)
         .set_dictionary_enabled(false)
         .set_column_dictionary_enabled(ColumnPath::from("take"), true)
         .set_column_dictionary_enabled(ColumnPath::from("subject"), true)
         .set_column_dictionary_enabled(ColumnPath::from("split"), true)
         .set_max_row_group_row_count(Some(64 * 1024))
-        .set_created_by(format!("mocap-ingest {}", env!("CARGO_PKG_VERSION")))
-        .build();
+        .set_created_by(format!("mocap-ingest {}", env!("CARGO_PKG_VERSION")));
+    if split_floats {
+        for f in schema.fields() {
+            if f.data_type() == &DataType::Float32 {
+                props = props.set_column_encoding(
+                    ColumnPath::from(f.name().as_str()),
+                    parquet::basic::Encoding::BYTE_STREAM_SPLIT,
+                );
+            }
+        }
+    }
+    let props = props.build();
     ArrowWriter::try_new(file, schema, Some(props)).map_err(|e| write_err(path, e))
 }
 
@@ -659,7 +722,7 @@ fn write_all(
 ) -> Result<(), DatasetError> {
     let schema = frames_schema();
     let frames_path = dir.join("frames.parquet");
-    let mut frames_w = parquet_writer(&frames_path, schema.clone())?;
+    let mut frames_w = parquet_writer(&frames_path, schema.clone(), opts.encoding)?;
     let mut takes_rows: Vec<TakeRow> = Vec::new();
     let mut windows_rows: Vec<(String, u32, usize)> = Vec::new();
     let mut inputs: BTreeMap<String, InputFile> = BTreeMap::new();
@@ -831,11 +894,16 @@ fn write_all(
         .into_inner()
         .map_err(|e| write_err(&frames_path, e))?;
     outputs.push(finish_file(w, &frames_path)?);
-    outputs.push(write_takes(&dir.join("takes.parquet"), &takes_rows)?);
+    outputs.push(write_takes(
+        &dir.join("takes.parquet"),
+        &takes_rows,
+        opts.encoding,
+    )?);
     outputs.push(write_windows(
         &dir.join("windows.parquet"),
         &windows_rows,
         opts.window,
+        opts.encoding,
     )?);
     if moments.n == 0.0 {
         return Err(DatasetError::Options(
@@ -866,6 +934,7 @@ fn write_all(
             "frame_rate_overrides": frame_rate_overrides(&opts.ingest),
             "exclude": opts.exclude,
             "asf": asf,
+            "encoding": opts.encoding.name(),
         },
         "counts": {
             "files": summary.files,
@@ -994,7 +1063,11 @@ struct TakeRow {
     split: usize,
 }
 
-fn write_takes(path: &Path, rows: &[TakeRow]) -> Result<OutputFile, DatasetError> {
+fn write_takes(
+    path: &Path,
+    rows: &[TakeRow],
+    encoding: Encoding,
+) -> Result<OutputFile, DatasetError> {
     let schema = Arc::new(Schema::new(vec![
         Field::new("take", DataType::Utf8, false),
         Field::new("subject", DataType::Utf8, false),
@@ -1025,13 +1098,14 @@ fn write_takes(path: &Path, rows: &[TakeRow]) -> Result<OutputFile, DatasetError
         counts(|r| r.frames),
         strings(|r| SPLITS[r.split]),
     ];
-    write_table(path, schema, cols)
+    write_table(path, schema, cols, encoding)
 }
 
 fn write_windows(
     path: &Path,
     rows: &[(String, u32, usize)],
     window: usize,
+    encoding: Encoding,
 ) -> Result<OutputFile, DatasetError> {
     let schema = Arc::new(Schema::new(vec![
         Field::new("take", DataType::Utf8, false),
@@ -1051,16 +1125,17 @@ fn write_windows(
             rows.iter().map(|r| SPLITS[r.2]),
         )),
     ];
-    write_table(path, schema, cols)
+    write_table(path, schema, cols, encoding)
 }
 
 fn write_table(
     path: &Path,
     schema: SchemaRef,
     cols: Vec<ArrayRef>,
+    encoding: Encoding,
 ) -> Result<OutputFile, DatasetError> {
     let batch = RecordBatch::try_new(schema.clone(), cols).map_err(|e| write_err(path, e))?;
-    let mut w = parquet_writer(path, schema)?;
+    let mut w = parquet_writer(path, schema, encoding)?;
     w.write(&batch).map_err(|e| write_err(path, e))?;
     let f = w.into_inner().map_err(|e| write_err(path, e))?;
     finish_file(f, path)
