@@ -47,6 +47,7 @@ fn fresh_dataset_passes_and_tampering_fails_by_name() {
     for f in [
         "audit.md",
         "audit.json",
+        "flagged.txt",
         "root_speed.png",
         "take_duration.png",
         "bone_length_variation.png",
@@ -114,4 +115,64 @@ fn fresh_dataset_passes_and_tampering_fails_by_name() {
         )),
         "{t}"
     );
+}
+
+#[test]
+fn flagged_takes_rebuild_out_with_exclude() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let src = six_takes(tmp.path());
+    // 07_12 jumps (the audit flags it: the root moves ~60 m/s in one frame).
+    let bvh = mocap_ingest::source::Source::open(&common::shared("cmu-bvh-sample.zip")).unwrap();
+    let bytes = bvh
+        .reader()
+        .unwrap()
+        .read("cmu-bvh-motionbuilder/07/07_12.bvh")
+        .unwrap();
+    std::fs::write(src.join("07_12.bvh"), bytes).unwrap();
+    let ds = tmp.path().join("ds");
+    small_dataset(&src, &ds);
+    let report = tmp.path().join("report");
+    let o = audit(&ds, None, &report);
+    assert!(o.status.success(), "{}", text(&o));
+    let flagged = std::fs::read_to_string(report.join("flagged.txt")).unwrap();
+    let ids: Vec<&str> = flagged
+        .lines()
+        .map(|l| l.split('#').next().unwrap().trim())
+        .filter(|l| !l.is_empty())
+        .collect();
+    assert_eq!(ids, ["07_12"], "{flagged}");
+    assert!(
+        flagged.contains("07_12  # ") && flagged.contains("root jumps: 66"),
+        "{flagged}"
+    );
+
+    // Rebuilt without the flagged take; the manifest says so, and the audit's
+    // rebuild from --source (which reads the manifest's exclude list) matches.
+    let clean = tmp.path().join("clean");
+    let ok = xtask()
+        .args(["dataset", "--quiet", "--window", "32", "--stride", "16"])
+        .args(["--split", "0.5,0.5,0", "--exclude"])
+        .arg(report.join("flagged.txt"))
+        .arg("--source")
+        .arg(&src)
+        .arg("--out")
+        .arg(&clean)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(clean.join("manifest.json")).unwrap())
+            .unwrap();
+    assert_eq!(m["options"]["exclude"], serde_json::json!(["07_12"]));
+    assert_eq!(m["counts"]["takes"], 6);
+    assert_eq!(m["counts"]["excluded"], 1);
+    let o = audit(&clean, Some(&src), &tmp.path().join("report2"));
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(
+        t.contains("rebuild from --source is byte-identical | ok"),
+        "{t}"
+    );
+    assert!(t.contains("0 flagged"), "{t}");
 }
