@@ -235,10 +235,12 @@ fn print_summary(s: &BuildSummary, out: &Path, seconds: f64, threads: usize, rss
             .map(|(f, n)| format!("{n} {f}"))
             .collect();
         println!(
-            "  takes in several copies {:>5}   kept: {}; {} after the preferred copy failed; {} copies not read",
+            "  takes in several copies {:>5}   kept: {}; {} after the preferred copy failed; \
+             {} retargeted (Daz) copies read but yielded to the subject's skeleton; {} copies not read",
             d.takes,
             if kept.is_empty() { "none".into() } else { kept.join(", ") },
             d.fell_back,
+            d.superseded,
             d.unread
         );
     }

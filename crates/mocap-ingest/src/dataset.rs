@@ -190,6 +190,9 @@ pub struct Duplicates {
     pub kept_by_format: BTreeMap<String, usize>,
     /// Takes whose preferred copy failed and a later copy was kept.
     pub fell_back: usize,
+    /// Copies that read but were retargeted (Daz-friendly) and yielded to a
+    /// later copy with the subject's own skeleton.
+    pub superseded: usize,
     /// Copies never read because an earlier copy was kept.
     pub unread: usize,
 }
@@ -713,6 +716,205 @@ fn remove_stale(parent: &Path, name: &str) {
     }
 }
 
+/// What the build accumulates, group by group in take order.
+struct Tally<'o> {
+    opts: &'o DatasetOptions,
+    summary: &'o mut BuildSummary,
+    takes_rows: Vec<TakeRow>,
+    windows_rows: Vec<(String, u32, usize)>,
+    inputs: BTreeMap<String, InputFile>,
+    moments: Moments,
+    /// Kept takes by the hashes of the files they were read from: the same
+    /// bytes under two ids are one take.
+    kept_content: HashMap<Vec<String>, (String, String)>,
+}
+
+impl Tally<'_> {
+    fn skip(&mut self, file: &str, take: &str, code: &str, message: String, kept: Option<&str>) {
+        self.summary.skipped.push(Skipped {
+            file: file.to_string(),
+            take: take.to_string(),
+            code: code.to_string(),
+            message,
+            kept: kept.map(str::to_string),
+        });
+    }
+
+    /// Account for one group: every file read, every copy not kept (and
+    /// why), duplicates; returns the kept take's clip and subject, if any.
+    fn group<'g>(&mut self, group: &'g Group, d: &'g GroupDone) -> Option<(&'g Clip, &'g str)> {
+        let id = &group.copies[0].take.take_id;
+        let kept = d.kept.map(|i| &group.copies[i]);
+        let k = kept.map(|c| c.file.as_str());
+        if group.copies.len() > 1 {
+            let dup = &mut self.summary.duplicates;
+            dup.takes += 1;
+            if let (Some(copy), Some(i)) = (kept, d.kept) {
+                *dup.kept_by_format
+                    .entry(copy.take.format.as_str().to_string())
+                    .or_default() += 1;
+                dup.fell_back += usize::from(d.attempts[..i].iter().any(|a| a.result.is_err()));
+            }
+            dup.unread += group.copies.len() - d.attempts.len();
+        }
+        for (i, (copy, a)) in group.copies.iter().zip(&d.attempts).enumerate() {
+            for f in &a.inputs {
+                self.inputs.entry(f.path.clone()).or_insert(InputFile {
+                    path: f.path.clone(),
+                    size: f.size,
+                    sha256: f.sha256.clone(),
+                });
+            }
+            let kept_name = k.unwrap_or_default();
+            match &a.result {
+                _ if d.kept == Some(i) => {}
+                Err(e) => {
+                    let message = match k {
+                        Some(k) => format!("{e} (take {id} was read from {k} instead)"),
+                        None => e.to_string(),
+                    };
+                    self.skip(&e.file, id, e.code(), message, k);
+                }
+                Ok(_) => {
+                    self.summary.duplicates.superseded += 1;
+                    let message = format!(
+                        "{}: duplicate take {id}, read but not kept: \
+                         the copy {kept_name} has the subject's own skeleton",
+                        copy.file
+                    );
+                    self.skip(&copy.file, id, "duplicate_take", message, k);
+                }
+            }
+        }
+        for copy in &group.copies[d.attempts.len()..] {
+            let message = format!(
+                "{}: duplicate take {id}, not read: the copy {} was read",
+                copy.file,
+                k.unwrap_or_default()
+            );
+            self.skip(&copy.file, id, "duplicate_take", message, k);
+        }
+        let i = d.kept?;
+        let (copy, attempt) = (&group.copies[i], &d.attempts[i]);
+        let clip = attempt.result.as_ref().ok()?;
+        let content: Vec<String> = attempt.inputs.iter().map(|f| f.sha256.clone()).collect();
+        if let Some((other, other_file)) = self.kept_content.get(&content).cloned() {
+            let message = format!(
+                "{}: the same bytes as {other_file}, already in the dataset as take {other}",
+                copy.file
+            );
+            self.skip(&copy.file, id, "duplicate_file", message, Some(&other_file));
+            return None;
+        }
+        self.kept_content
+            .insert(content, (id.clone(), copy.file.clone()));
+        self.add_take(copy, clip);
+        Some((clip, copy.take.subject.as_str()))
+    }
+
+    /// A take goes in: its split, windows, statistics, rows and counts.
+    fn add_take(&mut self, copy: &Copy, clip: &Clip) {
+        let (opts, summary) = (self.opts, &mut *self.summary);
+        let subject = copy.take.subject.as_str();
+        let key = match opts.split_by {
+            SplitBy::Take => clip.take_id.as_str(),
+            SplitBy::Subject => subject,
+        };
+        let split = split_of(key, opts.seed, opts.fractions);
+        let starts = window_starts(clip.features.len(), opts.window, opts.stride);
+        if starts.is_empty() {
+            summary.short_takes += 1;
+        }
+        if split == 0 {
+            // Multiplicity of each frame in the train windows.
+            let mut mult = vec![0u32; clip.features.len()];
+            for &s in &starts {
+                mult[s..s + opts.window].iter_mut().for_each(|m| *m += 1);
+            }
+            for (f, &m) in clip.features.iter().zip(&mult) {
+                self.moments.add(f, m as f64);
+            }
+        }
+        summary.takes += 1;
+        summary.takes_per_split[split] += 1;
+        summary.windows_per_split[split] += starts.len();
+        summary.frames += clip.features.len();
+        summary.native_frames += clip.native_frames;
+        let format = copy.take.format.as_str();
+        *summary
+            .takes_by_skeleton
+            .entry((format.to_string(), clip.skeleton.name().to_string()))
+            .or_default() += 1;
+        for &s in &starts {
+            self.windows_rows
+                .push((clip.take_id.clone(), s as u32, split));
+        }
+        self.takes_rows.push(TakeRow {
+            take: clip.take_id.clone(),
+            subject: subject.to_string(),
+            file: copy.file.clone(),
+            format,
+            skeleton: clip.skeleton.name(),
+            source_fps: clip.source_fps,
+            native_frames: clip.native_frames as u32,
+            frames: clip.features.len() as u32,
+            split,
+        });
+    }
+}
+
+/// Read every group, chunk by chunk in parallel, accounting for each in take
+/// order; `frames.parquet` is encoded, compressed and written on its own
+/// thread, batch by batch in that order, while the next chunk is read.
+fn read_all(
+    groups: &[Group],
+    num_sources: usize,
+    frames_path: &Path,
+    tally: &mut Tally,
+    progress: &dyn Progress,
+) -> Result<OutputFile, DatasetError> {
+    let opts = tally.opts;
+    let schema = frames_schema();
+    std::thread::scope(|scope| {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<RecordBatch>(2);
+        let writer = {
+            let schema = schema.clone();
+            scope.spawn(move || -> Result<OutputFile, DatasetError> {
+                let mut w = parquet_writer(frames_path, schema, opts.encoding)?;
+                for batch in rx {
+                    w.write(&batch).map_err(|e| write_err(frames_path, e))?;
+                }
+                let inner = w.into_inner().map_err(|e| write_err(frames_path, e))?;
+                finish_file(inner, frames_path)
+            })
+        };
+        for chunk in groups.chunks(CHUNK) {
+            let done: Vec<GroupDone> = chunk
+                .par_iter()
+                .map_init(
+                    || -> Readers { (0..num_sources).map(|_| None).collect() },
+                    |readers, group| run_group(group, readers, &opts.ingest, progress),
+                )
+                .collect();
+            let ok: Vec<(&Clip, &str)> = chunk
+                .iter()
+                .zip(&done)
+                .filter_map(|(g, d)| tally.group(g, d))
+                .collect();
+            if !ok.is_empty() {
+                let batch = frames_batch(&schema, &ok).map_err(|e| write_err(frames_path, e))?;
+                if tx.send(batch).is_err() {
+                    break; // The writer failed; its error comes from join below.
+                }
+            }
+        }
+        drop(tx);
+        writer
+            .join()
+            .map_err(|_| write_err(frames_path, "the Parquet writer thread panicked"))?
+    })
+}
+
 #[allow(clippy::too_many_arguments)]
 fn write_all(
     groups: &[Group],
@@ -724,189 +926,30 @@ fn write_all(
     summary: &mut BuildSummary,
     source_labels: &[String],
 ) -> Result<(), DatasetError> {
-    let schema = frames_schema();
-    let frames_path = dir.join("frames.parquet");
-    let mut takes_rows: Vec<TakeRow> = Vec::new();
-    let mut windows_rows: Vec<(String, u32, usize)> = Vec::new();
-    let mut inputs: BTreeMap<String, InputFile> = BTreeMap::new();
-    let mut moments = Moments::new();
-    // Kept takes by the hashes of the files they were read from: the same
-    // bytes under two ids are one take.
-    let mut kept_content: HashMap<Vec<String>, (String, String)> = HashMap::new();
-
-    // `frames.parquet` is encoded, compressed and written on its own thread,
-    // batch by batch in take order, while the next chunk is read.
-    let frames_out = std::thread::scope(|scope| -> Result<OutputFile, DatasetError> {
-        let (tx, rx) = std::sync::mpsc::sync_channel::<RecordBatch>(2);
-        let writer = {
-            let (path, schema) = (frames_path.clone(), schema.clone());
-            scope.spawn(move || -> Result<OutputFile, DatasetError> {
-                let mut w = parquet_writer(&path, schema, opts.encoding)?;
-                for batch in rx {
-                    w.write(&batch).map_err(|e| write_err(&path, e))?;
-                }
-                let inner = w.into_inner().map_err(|e| write_err(&path, e))?;
-                finish_file(inner, &path)
-            })
-        };
-        for chunk in groups.chunks(CHUNK) {
-            let done: Vec<GroupDone> = chunk
-                .par_iter()
-                .map_init(
-                    || -> Readers { (0..num_sources).map(|_| None).collect() },
-                    |readers, group| run_group(group, readers, &opts.ingest, progress),
-                )
-                .collect();
-            let mut ok: Vec<(&Clip, &str)> = Vec::new();
-            for (group, d) in chunk.iter().zip(&done) {
-                let id = &group.copies[0].take.take_id;
-                let kept = d.kept.map(|i| (&group.copies[i], &d.attempts[i]));
-                let kept_file = kept.map(|k| k.0.file.clone());
-                if group.copies.len() > 1 {
-                    let dup = &mut summary.duplicates;
-                    dup.takes += 1;
-                    if let (Some((copy, _)), Some(i)) = (kept, d.kept) {
-                        *dup.kept_by_format
-                            .entry(copy.take.format.as_str().to_string())
-                            .or_default() += 1;
-                        dup.fell_back +=
-                            usize::from(d.attempts[..i].iter().any(|a| a.result.is_err()));
-                    }
-                    dup.unread += group.copies.len() - d.attempts.len();
-                }
-                for (i, (copy, a)) in group.copies.iter().zip(&d.attempts).enumerate() {
-                    for f in &a.inputs {
-                        inputs.entry(f.path.clone()).or_insert(InputFile {
-                            path: f.path.clone(),
-                            size: f.size,
-                            sha256: f.sha256.clone(),
-                        });
-                    }
-                    let k = kept_file.as_deref().unwrap_or_default();
-                    let (code, message) = match &a.result {
-                    _ if d.kept == Some(i) => continue,
-                    Err(e) if kept.is_some() => (
-                        e.code(),
-                        format!("{e} (take {id} was read from {k} instead)"),
-                    ),
-                    Err(e) => (e.code(), e.to_string()),
-                    Ok(_) => (
-                        "duplicate_take",
-                        format!(
-                            "{}: duplicate take {id}, read but not kept: the copy {k} has the subject's own skeleton",
-                            copy.file
-                        ),
-                    ),
-                };
-                    summary.skipped.push(Skipped {
-                        file: match &a.result {
-                            Err(e) => e.file.clone(),
-                            Ok(_) => copy.file.clone(),
-                        },
-                        take: id.clone(),
-                        code: code.into(),
-                        message,
-                        kept: kept_file.clone(),
-                    });
-                }
-                for copy in &group.copies[d.attempts.len()..] {
-                    let k = kept_file.clone().unwrap_or_default();
-                    summary.skipped.push(Skipped {
-                        message: format!(
-                            "{}: duplicate take {id}, not read: the copy {k} was read",
-                            copy.file
-                        ),
-                        file: copy.file.clone(),
-                        take: id.clone(),
-                        code: "duplicate_take".into(),
-                        kept: kept_file.clone(),
-                    });
-                }
-                let Some((
-                    copy,
-                    Attempt {
-                        result: Ok(clip),
-                        inputs: read,
-                    },
-                )) = kept
-                else {
-                    continue;
-                };
-                let content: Vec<String> = read.iter().map(|i| i.sha256.clone()).collect();
-                if let Some((other, other_file)) = kept_content.get(&content) {
-                    summary.skipped.push(Skipped {
-                    message: format!(
-                        "{}: the same bytes as {other_file}, already in the dataset as take {other}",
-                        copy.file
-                    ),
-                    file: copy.file.clone(),
-                    take: id.clone(),
-                    code: "duplicate_file".into(),
-                    kept: Some(other_file.clone()),
-                });
-                    continue;
-                }
-                kept_content.insert(content, (id.clone(), copy.file.clone()));
-                let subject = copy.take.subject.as_str();
-                let key = match opts.split_by {
-                    SplitBy::Take => clip.take_id.as_str(),
-                    SplitBy::Subject => subject,
-                };
-                let split = split_of(key, opts.seed, opts.fractions);
-                let starts = window_starts(clip.features.len(), opts.window, opts.stride);
-                if starts.is_empty() {
-                    summary.short_takes += 1;
-                }
-                if split == 0 {
-                    // Multiplicity of each frame in the train windows.
-                    let mut mult = vec![0u32; clip.features.len()];
-                    for &s in &starts {
-                        mult[s..s + opts.window].iter_mut().for_each(|m| *m += 1);
-                    }
-                    for (f, &m) in clip.features.iter().zip(&mult) {
-                        moments.add(f, m as f64);
-                    }
-                }
-                summary.takes += 1;
-                summary.takes_per_split[split] += 1;
-                summary.windows_per_split[split] += starts.len();
-                summary.frames += clip.features.len();
-                summary.native_frames += clip.native_frames;
-                *summary
-                    .takes_by_skeleton
-                    .entry((
-                        copy.take.format.as_str().to_string(),
-                        clip.skeleton.name().to_string(),
-                    ))
-                    .or_default() += 1;
-                for &s in &starts {
-                    windows_rows.push((clip.take_id.clone(), s as u32, split));
-                }
-                takes_rows.push(TakeRow {
-                    take: clip.take_id.clone(),
-                    subject: subject.to_string(),
-                    file: copy.file.clone(),
-                    format: copy.take.format.as_str(),
-                    skeleton: clip.skeleton.name(),
-                    source_fps: clip.source_fps,
-                    native_frames: clip.native_frames as u32,
-                    frames: clip.features.len() as u32,
-                    split,
-                });
-                ok.push((clip, subject));
-            }
-            if !ok.is_empty() {
-                let batch = frames_batch(&schema, &ok).map_err(|e| write_err(&frames_path, e))?;
-                if tx.send(batch).is_err() {
-                    break; // The writer failed; its error comes from join below.
-                }
-            }
-        }
-        drop(tx);
-        writer
-            .join()
-            .map_err(|_| write_err(&frames_path, "the Parquet writer thread panicked"))?
-    })?;
+    let mut tally = Tally {
+        opts,
+        summary,
+        takes_rows: Vec::new(),
+        windows_rows: Vec::new(),
+        inputs: BTreeMap::new(),
+        moments: Moments::new(),
+        kept_content: HashMap::new(),
+    };
+    let frames_out = read_all(
+        groups,
+        num_sources,
+        &dir.join("frames.parquet"),
+        &mut tally,
+        progress,
+    )?;
+    let Tally {
+        summary,
+        takes_rows,
+        windows_rows,
+        inputs,
+        moments,
+        ..
+    } = tally;
     summary.input_bytes = inputs.values().map(|i| i.size).sum();
     if summary.takes == 0 {
         return Err(DatasetError::Empty {
