@@ -399,6 +399,27 @@ fn daz_files_arrive_as_daz_takes_in_a_mixed_collection() {
         .map(|k| k.take.as_str())
         .collect();
     assert_eq!(superseded, ["05_03", "06_02", "07_06", "08_11"]);
+    // The same bytes with one thread (duplicates are decided per take, in
+    // take order).
+    let one = tmp.path().join("one-thread");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    pool.install(|| build(sources.to_vec(), &one, &DatasetOptions::default()));
+    for f in [
+        "frames.parquet",
+        "takes.parquet",
+        "windows.parquet",
+        "stats.json",
+        "skipped.json",
+        "manifest.json",
+    ] {
+        assert!(
+            std::fs::read(out.join(f)).unwrap() == std::fs::read(one.join(f)).unwrap(),
+            "{f} depends on the thread count"
+        );
+    }
     assert_eq!(s.files, 8 + 139 + 225);
     assert_eq!(s.takes, 139 + 225 - 54);
     let by: BTreeMap<String, usize> = s
