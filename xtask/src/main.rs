@@ -84,6 +84,9 @@ enum Command {
         /// Keep the ASF thorax length (the full ASF skeleton).
         #[arg(long)]
         full_asf_skeleton: bool,
+        /// ASF skeleton for an .amc whose own is not found beside it.
+        #[arg(long)]
+        asf: Option<PathBuf>,
     },
 }
 
@@ -108,7 +111,8 @@ fn main() -> Result<()> {
         Command::Inspect {
             file,
             full_asf_skeleton,
-        } => inspect(&file, full_asf_skeleton),
+            asf,
+        } => inspect(&file, full_asf_skeleton, asf),
     }
 }
 
@@ -262,14 +266,14 @@ fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
     Ok(())
 }
 
-fn inspect(file: &Path, full_asf_skeleton: bool) -> Result<()> {
+fn inspect(file: &Path, full_asf_skeleton: bool, asf: Option<PathBuf>) -> Result<()> {
     let dir = file.parent().unwrap_or(Path::new("."));
     let name = file
         .file_name()
         .context("not a file path")?
         .to_string_lossy()
         .into_owned();
-    let source = Source::open(dir)?;
+    let source = Source::open(dir)?.with_fallback_asf(asf);
     let take = source
         .takes()?
         .into_iter()
