@@ -4,7 +4,9 @@
 //! given with `--asf`, exclude lists. Every take must arrive with the right
 //! id, subject and skeleton.
 
-use integration_tests::{asfamc_zip, bvh_zip, daz_zip, read_entry};
+use integration_tests::{
+    asfamc_zip, bvh_zip, dataset_contents, daz_zip, read_entry, short_takes_options, DATASET_FILES,
+};
 use mocap_ingest::dataset::{build_dataset, BuildSummary, DatasetOptions, NoProgress, Skipped};
 use mocap_ingest::source::{FileRef, Format, Source};
 use mocap_ingest::{process_take, Options};
@@ -28,17 +30,6 @@ fn lay_out(root: &Path, files: &[(&str, Vec<u8>)]) -> PathBuf {
         std::fs::write(p, bytes).unwrap();
     }
     root.to_path_buf()
-}
-
-/// Short takes (subject 02's are ~90 frames at 30 fps): all in train,
-/// short windows.
-fn opts() -> DatasetOptions {
-    DatasetOptions {
-        fractions: [1.0, 0.0, 0.0],
-        window: 32,
-        stride: 16,
-        ..Default::default()
-    }
 }
 
 fn build(sources: Vec<Source>, out: &Path, opts: &DatasetOptions) -> BuildSummary {
@@ -144,7 +135,7 @@ fn skeletons_not_named_nn_asf_are_found() {
     assert_eq!(asf_of["49_02"], (fallback.display().to_string(), "--asf"));
 
     let out = tmp.path().join("ds");
-    let s = build(vec![source], &out, &opts());
+    let s = build(vec![source], &out, &short_takes_options());
     assert!(s.skipped.is_empty(), "{:?}", s.skipped);
     let t = takes_table(&out);
     assert_eq!(t.len(), 5);
@@ -256,7 +247,11 @@ fn same_stems_in_several_folders_are_different_takes() {
     ];
     let a = lay_out(&tmp.path().join("dances"), &files);
     let out = tmp.path().join("ds");
-    let s = build(vec![Source::open(&a).unwrap()], &out, &opts());
+    let s = build(
+        vec![Source::open(&a).unwrap()],
+        &out,
+        &short_takes_options(),
+    );
     assert!(s.skipped.is_empty(), "{:?}", s.skipped);
     let t = takes_table(&out);
     let got: Vec<(&str, &str)> = t
@@ -290,7 +285,7 @@ fn same_stems_in_several_folders_are_different_takes() {
     let s = build(
         vec![Source::open(&a).unwrap(), Source::open(&b).unwrap()],
         &out2,
-        &opts(),
+        &short_takes_options(),
     );
     let t = takes_table(&out2);
     assert!(
@@ -328,7 +323,7 @@ fn a_failing_preferred_copy_falls_back_to_the_next() {
     let s = build(
         vec![Source::open(&src.join("mixed")).unwrap()],
         &out,
-        &opts(),
+        &short_takes_options(),
     );
     let t = takes_table(&out);
     assert_eq!(row(&t, "02_02")[1], "bvh");
@@ -367,7 +362,11 @@ fn daz_files_arrive_as_daz_takes_in_a_mixed_collection() {
     let out = tmp.path().join("ds");
     let sources = [daz_zip(), bvh_zip(), asfamc_zip()].map(|p| Source::open(&p).unwrap());
     let daz_alone = tmp.path().join("daz");
-    let s = build(vec![Source::open(&daz_zip()).unwrap()], &daz_alone, &opts());
+    let s = build(
+        vec![Source::open(&daz_zip()).unwrap()],
+        &daz_alone,
+        &short_takes_options(),
+    );
     assert_eq!(s.takes, 8);
     let t = takes_table(&daz_alone);
     for (id, r) in &t {
@@ -407,18 +406,9 @@ fn daz_files_arrive_as_daz_takes_in_a_mixed_collection() {
         .build()
         .unwrap();
     pool.install(|| build(sources.to_vec(), &one, &DatasetOptions::default()));
-    for f in [
-        "frames.parquet",
-        "takes.parquet",
-        "windows.parquet",
-        "stats.json",
-        "skipped.json",
-        "manifest.json",
-    ] {
-        assert!(
-            std::fs::read(out.join(f)).unwrap() == std::fs::read(one.join(f)).unwrap(),
-            "{f} depends on the thread count"
-        );
+    let (a, b) = (dataset_contents(&out), dataset_contents(&one));
+    for f in DATASET_FILES {
+        assert!(a[f] == b[f], "{f} depends on the thread count");
     }
     assert_eq!(s.files, 8 + 139 + 225);
     assert_eq!(s.takes, 139 + 225 - 54);
@@ -448,7 +438,7 @@ fn excluded_takes_are_left_out_and_recorded() {
             ("s/02_03.bvh", bvh("02/02_03.bvh")),
         ],
     );
-    let mut o = opts();
+    let mut o = short_takes_options();
     o.exclude = mocap_ingest::dataset::parse_exclude_list(
         "# flagged by the audit\n02_02  # root jumps: 60 m/s\n\n99_99\n",
     );

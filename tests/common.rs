@@ -8,7 +8,9 @@
 //! CMU_SHARED_DIR)` and passes, unless `CMU_SAMPLES_REQUIRED=1` (set by
 //! `.ci/run`), in which case it fails.
 
-use std::path::PathBuf;
+use mocap_ingest::dataset::DatasetOptions;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
 /// The sample files the real-data tests read.
 pub const SAMPLE_FILES: [&str; 3] = [
@@ -98,4 +100,33 @@ pub fn read_entry(archive: &std::path::Path, name: &str) -> Vec<u8> {
         .expect("reader")
         .read(name)
         .unwrap_or_else(|e| panic!("{}!/{name}: {e}", archive.display()))
+}
+
+/// Every file of a dataset directory.
+pub const DATASET_FILES: [&str; 6] = [
+    "frames.parquet",
+    "takes.parquet",
+    "windows.parquet",
+    "stats.json",
+    "skipped.json",
+    "manifest.json",
+];
+
+/// The bytes of every file of a dataset directory.
+pub fn dataset_contents(dir: &Path) -> BTreeMap<&'static str, Vec<u8>> {
+    DATASET_FILES
+        .iter()
+        .map(|f| (*f, std::fs::read(dir.join(f)).unwrap()))
+        .collect()
+}
+
+/// Options for a handful of short takes (subject 02's are ~90 frames at
+/// 30 fps): all in train and windows of 32 frames, so there are statistics.
+pub fn short_takes_options() -> DatasetOptions {
+    DatasetOptions {
+        fractions: [1.0, 0.0, 0.0],
+        window: 32,
+        stride: 16,
+        ..Default::default()
+    }
 }

@@ -2,35 +2,16 @@
 //! thread count, bad files reported without changing the good output, a
 //! failed build leaves the previous dataset in place, and polars reads it all.
 
-use integration_tests::{asfamc_zip, bvh_zip, read_entry};
+use integration_tests::{
+    asfamc_zip, bvh_zip, dataset_contents, read_entry, short_takes_options, DATASET_FILES,
+};
 use mocap_ingest::dataset::{build_dataset, DatasetOptions, NoProgress};
 use mocap_ingest::source::Source;
 use polars::prelude::*;
-use std::collections::BTreeMap;
 use std::path::Path;
-
-const FILES: [&str; 6] = [
-    "frames.parquet",
-    "takes.parquet",
-    "windows.parquet",
-    "stats.json",
-    "skipped.json",
-    "manifest.json",
-];
 
 fn build(sources: &[&Path], out: &Path, threads: usize) -> mocap_ingest::dataset::BuildSummary {
     build_with(sources, out, threads, &DatasetOptions::default())
-}
-
-/// Options for a handful of short takes (subject 02's are ~90 frames at
-/// 30 fps): all in train and short windows, so there are statistics.
-fn all_train() -> DatasetOptions {
-    DatasetOptions {
-        fractions: [1.0, 0.0, 0.0],
-        window: 32,
-        stride: 16,
-        ..Default::default()
-    }
 }
 
 fn build_with(
@@ -49,13 +30,6 @@ fn build_with(
         .unwrap_or_else(|e| panic!("{e}"))
 }
 
-fn contents(dir: &Path) -> BTreeMap<&'static str, Vec<u8>> {
-    FILES
-        .iter()
-        .map(|f| (*f, std::fs::read(dir.join(f)).unwrap()))
-        .collect()
-}
-
 #[test]
 fn output_is_byte_identical_with_one_thread_and_all_threads() {
     integration_tests::require_samples!();
@@ -66,10 +40,10 @@ fn output_is_byte_identical_with_one_thread_and_all_threads() {
         let out = tmp.path().join(format!("run{i}"));
         let s = build(&[&bvh], &out, *threads);
         assert_eq!(s.takes, 139);
-        seen.push(contents(&out));
+        seen.push(dataset_contents(&out));
     }
     for other in &seen[1..] {
-        for f in FILES {
+        for f in DATASET_FILES {
             assert!(seen[0][f] == other[f], "{f} differs between runs");
         }
     }
@@ -100,16 +74,16 @@ fn broken_files_are_reported_and_do_not_change_the_good_output() {
     std::fs::write(mixed.join("02/02_93.amc"), b"1\nroot 0 0 0 0 0 0\n").unwrap();
     std::fs::write(mixed.join("02/notes.txt"), b"not motion").unwrap();
 
-    let a = build_with(&[&good], &tmp.path().join("a"), 2, &all_train());
-    let b = build_with(&[&mixed], &tmp.path().join("b"), 2, &all_train());
+    let a = build_with(&[&good], &tmp.path().join("a"), 2, &short_takes_options());
+    let b = build_with(&[&mixed], &tmp.path().join("b"), 2, &short_takes_options());
     assert_eq!(a.takes, 4);
     assert_eq!(b.takes, 4);
     let codes: Vec<&str> = b.skipped.iter().map(|s| s.code.as_str()).collect();
     assert_eq!(codes, ["truncated", "empty", "not_text", "missing_asf"]);
     assert!(b.skipped[0].message.contains("02_90.bvh"));
     let (ca, cb) = (
-        contents(&tmp.path().join("a")),
-        contents(&tmp.path().join("b")),
+        dataset_contents(&tmp.path().join("a")),
+        dataset_contents(&tmp.path().join("b")),
     );
     for f in ["frames.parquet", "windows.parquet", "stats.json"] {
         assert!(ca[f] == cb[f], "{f} changed because of the broken files");
@@ -138,15 +112,22 @@ fn a_failed_build_keeps_the_previous_dataset() {
         read_entry(&bvh_zip(), "cmu-bvh-motionbuilder/02/02_01.bvh"),
     )
     .unwrap();
-    build_with(&[&src], &out, 1, &all_train());
-    let before = contents(&out);
+    build_with(&[&src], &out, 1, &short_takes_options());
+    let before = dataset_contents(&out);
     // Only a broken file now: the build fails (empty dataset) ...
     std::fs::write(src.join("02_01.bvh"), b"HIERARCHY\n").unwrap();
     let s = Source::open(&src).unwrap();
-    let err = build_dataset(&[s], &["src".into()], &out, &all_train(), &NoProgress).unwrap_err();
+    let err = build_dataset(
+        &[s],
+        &["src".into()],
+        &out,
+        &short_takes_options(),
+        &NoProgress,
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("empty dataset"), "{err}");
     // ... and the previous dataset is untouched, with no staging left over.
-    assert_eq!(contents(&out), before);
+    assert_eq!(dataset_contents(&out), before);
     let names: Vec<String> = std::fs::read_dir(tmp.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())

@@ -7,7 +7,7 @@
 //! This binary holds a single test, so the hook sees only its own panics.
 
 use integration_tests::{asfamc_zip, bvh_zip, daz_zip, read_entry};
-use mocap_ingest::dataset::{build_dataset, DatasetOptions, NoProgress};
+use mocap_ingest::dataset::{build_dataset, NoProgress};
 use mocap_ingest::source::Source;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -193,12 +193,7 @@ fn hundreds_of_mutants_of_real_files_never_panic() {
     }
 
     let source = Source::open(&root).unwrap();
-    let opts = DatasetOptions {
-        fractions: [1.0, 0.0, 0.0],
-        window: 32,
-        stride: 16,
-        ..Default::default()
-    };
+    let opts = integration_tests::short_takes_options();
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)
         .build()
