@@ -141,6 +141,15 @@ fn broken_bvh_files_each_give_their_error() {
             "14_extra_brace.bvh",
             good.replacen("}", "}\n}\n}", 1).into_bytes(),
         ),
+        // Both made bvh_anim panic ("Missing joint name!", "Unexpected root").
+        (
+            "15_joint_without_name.bvh",
+            good.replacen("JOINT LeftUpLeg", "JOINT", 1).into_bytes(),
+        ),
+        (
+            "16_root_first.bvh",
+            good.replacen("HIERARCHY", "", 1).into_bytes(),
+        ),
     ];
     let results = run(&files);
     assert_eq!(results.len(), files.len());
@@ -215,6 +224,23 @@ fn broken_bvh_files_each_give_their_error() {
         ErrorKind::NonFinite { .. }
     ));
     expect_err(&results, "14_extra_brace");
+    let joint_line = line_of(&good, "JOINT LeftUpLeg");
+    match &expect_err(&results, "15_joint_without_name").kind {
+        ErrorKind::Syntax {
+            line: Some(l),
+            message,
+            ..
+        } => assert_eq!((*l, message.as_str()), (joint_line, "JOINT without a name")),
+        k => panic!("{k}"),
+    }
+    match &expect_err(&results, "16_root_first").kind {
+        ErrorKind::Syntax {
+            line: Some(2),
+            message,
+            ..
+        } => assert_eq!(message, "expected HIERARCHY, found \"ROOT\""),
+        k => panic!("{k}"),
+    }
 }
 
 #[test]
