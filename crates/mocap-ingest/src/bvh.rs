@@ -10,7 +10,7 @@ use crate::skeleton::{
     CMU_ROOT_FROM_HIP_JOINTS, HIPS, LEFT_FOOT, LEFT_LEG, LEFT_UP_LEG, NUM_JOINTS, RIGHT_FOOT,
     RIGHT_LEG, RIGHT_UP_LEG,
 };
-use crate::text::{parse_decimal, tokens};
+use crate::text::{parse_decimal, parse_numbers, tokens};
 
 /// One BVH joint (or End Site), reduced to what forward kinematics needs.
 #[derive(Clone, Debug)]
@@ -648,20 +648,17 @@ fn parse_motion(
     while let Some((n, line)) = lines.next() {
         last_line = n;
         let before = values.len();
-        for t in tokens(line) {
-            let v = parse_decimal(t).ok_or_else(|| ErrorKind::NonNumeric {
-                line: n,
-                token: snippet(t),
-            })?;
-            if !v.is_finite() {
-                let ch = values.len() - before;
-                return Err(ErrorKind::NonFinite {
-                    frame: found,
-                    what: format!("channel {ch} ({}) at line {n}", owner(ch)),
-                });
-            }
-            values.push(v);
+        let parsed = parse_numbers(line, &mut values);
+        if let Some(ch) = values[before..].iter().position(|v| !v.is_finite()) {
+            return Err(ErrorKind::NonFinite {
+                frame: found,
+                what: format!("channel {ch} ({}) at line {n}", owner(ch)),
+            });
         }
+        parsed.map_err(|t| ErrorKind::NonNumeric {
+            line: n,
+            token: snippet(t),
+        })?;
         let count = values.len() - before;
         if count != channels {
             // A short final line is a truncated file, not a layout error.
