@@ -298,6 +298,21 @@ fn same_stems_in_several_folders_are_different_takes() {
     let dup = skipped_of(&s, "more/indian/04.bvh");
     assert_eq!(dup.code, "duplicate_file");
     assert_eq!(dup.kept.as_deref(), Some("dances/indian/04.bvh"));
+
+    // Two collections of the same name: qualified by their position too.
+    let c = lay_out(
+        &tmp.path().join("elsewhere/dances"),
+        &[("salsa/04.bvh", bvh("02/02_07.bvh"))],
+    );
+    let out3 = tmp.path().join("ds3");
+    build(
+        vec![Source::open(&a).unwrap(), Source::open(&c).unwrap()],
+        &out3,
+        &short_takes_options(),
+    );
+    let t = takes_table(&out3);
+    assert_eq!(row(&t, "dances#1/salsa/04")[0], "salsa");
+    assert_eq!(row(&t, "dances#2/salsa/04")[3], "dances/salsa/04.bvh");
 }
 
 #[test]

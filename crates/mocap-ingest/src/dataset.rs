@@ -654,15 +654,14 @@ fn qualify_colliding_ids(copies: &mut [Copy]) {
     if colliding.is_empty() {
         return;
     }
+    // How many of the sources share each collection name.
+    let sources: BTreeSet<(String, usize)> = copies
+        .iter()
+        .map(|c| (c.source.collection_name(), c.source_index))
+        .collect();
     let mut name_count: HashMap<String, usize> = HashMap::new();
-    for c in copies.iter() {
-        name_count.entry(c.source.collection_name()).or_default();
-    }
-    let mut seen: BTreeSet<(String, usize)> = BTreeSet::new();
-    for c in copies.iter() {
-        if seen.insert((c.source.collection_name(), c.source_index)) {
-            *name_count.entry(c.source.collection_name()).or_default() += 1;
-        }
+    for (name, _) in sources {
+        *name_count.entry(name).or_default() += 1;
     }
     for c in copies.iter_mut() {
         if c.take.cmu_trial || !colliding.contains(&c.take.take_id) {
