@@ -1,9 +1,9 @@
 //! `cargo xtask audit`.
 
-use crate::plot::histogram;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use dataset_audit::{audit, Report, Thresholds};
+use motion_render::chart::histogram;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 

@@ -108,8 +108,8 @@ pub fn write_bvh(path: &Path, m: &Motion) -> Result<(), RenderError> {
     crate::write_file(path, to_bvh(m)?.as_bytes())
 }
 
-/// Write every motion as `DIR/ID.bvh`; returns the paths written.
-pub fn write_all(dir: &Path, motions: &[Motion]) -> Result<Vec<std::path::PathBuf>, RenderError> {
+/// Write every motion as `DIR/ID.bvh` and read each back ([`round_trip`]).
+pub fn write_all(dir: &Path, motions: &[Motion]) -> Result<Vec<RoundTrip>, RenderError> {
     motions
         .iter()
         .map(|m| {
@@ -125,10 +125,72 @@ pub fn write_all(dir: &Path, motions: &[Motion]) -> Result<Vec<std::path::PathBu
                         .into(),
                 });
             }
-            let p = dir.join(format!("{}.bvh", m.id));
-            write_bvh(&p, m).map(|()| p)
+            let text = to_bvh(m)?;
+            crate::write_file(&dir.join(format!("{}.bvh", m.id)), text.as_bytes())?;
+            round_trip(m, &text)
         })
         .collect()
+}
+
+/// How well a BVH file reproduces its motion, read back with
+/// `mocap_ingest`'s reader. Distances in CMU units.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RoundTrip {
+    /// Frames read back.
+    pub frames: usize,
+    /// Largest and mean joint distance, read back vs the motion.
+    pub max: f64,
+    /// Mean joint distance over joints and frames.
+    pub mean: f64,
+    /// Largest and mean distance of the motion rebuilt with mean bone
+    /// lengths ([`crate::solve::with_mean_bone_lengths`]) from the motion:
+    /// the error bone-length variation alone explains.
+    pub bone_max: f64,
+    /// Mean of that distance.
+    pub bone_mean: f64,
+    /// Largest distance between what was read back and the mean-bone-length
+    /// motion: the error not explained by bone lengths.
+    pub residual_max: f64,
+}
+
+/// Read `text` (the BVH of `m`) back with `mocap_ingest` and compare.
+pub fn round_trip(m: &Motion, text: &str) -> Result<RoundTrip, RenderError> {
+    use mocap_ingest::math::{norm, sub};
+    let err = |message: String| RenderError::Motion {
+        id: m.id.clone(),
+        message,
+    };
+    let back = mocap_ingest::read_bvh(&format!("{}.bvh", m.id), text.as_bytes())
+        .map_err(|e| err(format!("reading the export back: {e}")))?;
+    if back.skeleton() != mocap_ingest::SkeletonKind::Exported {
+        return Err(err(format!("read back as {}", back.skeleton().name())));
+    }
+    if back.num_frames() != m.poses.len() {
+        return Err(err(format!(
+            "{} frames read back, {} written",
+            back.num_frames(),
+            m.poses.len()
+        )));
+    }
+    let rigid = crate::solve::with_mean_bone_lengths(&m.poses);
+    let mut r = RoundTrip {
+        frames: m.poses.len(),
+        ..RoundTrip::default()
+    };
+    let (mut sum, mut bone_sum, mut n) = (0.0, 0.0, 0usize);
+    for (f, (pose, rig)) in m.poses.iter().zip(&rigid).enumerate() {
+        let read = back.pose(f);
+        for k in 0..pose.len() {
+            let (e, b) = (norm(sub(read[k], pose[k])), norm(sub(rig[k], pose[k])));
+            r.max = r.max.max(e);
+            r.bone_max = r.bone_max.max(b);
+            r.residual_max = r.residual_max.max(norm(sub(read[k], rig[k])));
+            (sum, bone_sum, n) = (sum + e, bone_sum + b, n + 1);
+        }
+    }
+    r.mean = sum / n.max(1) as f64;
+    r.bone_mean = bone_sum / n.max(1) as f64;
+    Ok(r)
 }
 
 #[cfg(test)]

@@ -67,11 +67,12 @@
     const set = current(), d = set.data, ms = d.motions;
     const group = overlayBox.checked ? Math.max(1, set.group || 1) : 1;
     const cells = Math.ceil(ms.length / group), cols = Math.ceil(Math.sqrt(cells));
-    let extent = 0;
-    ms.forEach((m) => m.frames.forEach((f) => {
-      extent = Math.max(extent, Math.hypot(f[0][0] - m.frames[0][0][0], f[0][2] - m.frames[0][0][2]));
-    }));
-    const spacing = Math.min(160, Math.max(45, 2 * extent + 25));
+    // Cell size from the 75th percentile of how far a root travels, so one
+    // runaway motion does not shrink all the others.
+    const travel = ms.map((m) => Math.max(0, ...m.frames.map((f) =>
+      Math.hypot(f[0][0] - m.frames[0][0][0], f[0][2] - m.frames[0][0][2])))).sort((x, y) => x - y);
+    const p75 = travel[Math.floor(0.75 * (travel.length - 1))] || 0;
+    const spacing = Math.min(90, Math.max(40, 2 * p75 + 20));
     ms.forEach((m, k) => {
       const cell = Math.floor(k / group), member = k % group;
       const off = new THREE.Vector3((cell % cols) * spacing, 0, Math.floor(cell / cols) * spacing);
@@ -100,7 +101,7 @@
     grid.position.set((cols - 1) * spacing / 2, 0, (Math.ceil(cells / cols) - 1) * spacing / 2);
     world.add(grid);
     const centre = new THREE.Vector3(grid.position.x, 14, grid.position.z);
-    const dist = Math.max(70, 1.25 * Math.max(w, h));
+    const dist = Math.max(60, 0.95 * Math.max(w, h));
     camera.position.set(centre.x + dist * 0.55, centre.y + dist * 0.45, centre.z + dist * 0.8);
     controls.target.copy(centre);
     controls.update();
