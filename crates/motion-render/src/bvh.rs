@@ -13,8 +13,9 @@
 //! without finger joints is recognised as this export, with no T-pose frame
 //! to drop).
 
-use crate::solve::{euler_zyx, solve, Solved, NUM_BVH_JOINTS, SKELETON};
+use crate::solve::{euler, solve, Solved, NUM_BVH_JOINTS, SKELETON};
 use crate::{Motion, RenderError};
+use mocap_ingest::math::Axis;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -42,13 +43,21 @@ fn hierarchy(s: &Solved) -> String {
     fn joint(out: &mut String, s: &Solved, b: usize, depth: usize) {
         let pad = "\t".repeat(depth);
         let j = &SKELETON[b];
+        let rotations: Vec<&str> = s.orders[b]
+            .iter()
+            .map(|a| match a {
+                Axis::X => "Xrotation",
+                Axis::Y => "Yrotation",
+                Axis::Z => "Zrotation",
+            })
+            .collect();
         let (kw, channels) = if j.parent.is_none() {
             (
                 "ROOT",
-                "6 Xposition Yposition Zposition Zrotation Yrotation Xrotation",
+                format!("6 Xposition Yposition Zposition {}", rotations.join(" ")),
             )
         } else {
-            ("JOINT", "3 Zrotation Yrotation Xrotation")
+            ("JOINT", format!("3 {}", rotations.join(" ")))
         };
         let _ = writeln!(out, "{pad}{kw} {}\n{pad}{{", j.name);
         let _ = writeln!(out, "{pad}\tOFFSET {}", vec3(s.rest.offsets[b]));
@@ -80,7 +89,7 @@ fn motion_lines(s: &Solved, out: &mut String) {
     for (f, local) in s.local.iter().enumerate() {
         let mut line = vec3(s.root[f]);
         for (b, r) in local.iter().enumerate() {
-            let e = euler_zyx(r, prev[b]);
+            let e = euler(r, s.orders[b], prev[b]);
             prev[b] = Some(e);
             line.push(' ');
             line += &vec3(e);

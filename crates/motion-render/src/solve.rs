@@ -7,11 +7,12 @@
 //! one of the 18 bones between kept joints belongs to a joint with exactly one
 //! child, so its direction can be matched exactly in every frame.
 //!
-//! Rest pose (all rotations zero): facing +z, y up, left = +x. Bones out of
-//! the pelvis and the chest keep their mean direction in the pelvis or chest
-//! frame (so the rest pose has the motion's own hips and shoulders); the spine,
-//! neck and head point up, legs down, feet forward, arms sideways. Lengths are
-//! the motion's mean bone lengths.
+//! Rest pose (all rotations zero): y up, the first frame facing +z. Each
+//! bone has the motion's mean length. Its rest direction, relative to its
+//! parent, is the bone's mean direction over the motion, except the upper
+//! arms, which rest sideways (T-pose); the spine above the pelvis and the
+//! chest point up. Each rotation is thus measured from where the bone
+//! usually is.
 //!
 //! Orientation of each joint (global, `G`), frame by frame:
 //! - `Hips` (pelvis): aim `Spine − Hips` (+y), twist from the hip line
@@ -21,44 +22,55 @@
 //! - `Spine`: aim `Spine1 − Spine`, twist from the sum of the unit hip and
 //!   shoulder lines (half the torso's twist on each side of it);
 //! - every other joint with a child: the shortest rotation, relative to its
-//!   parent, that turns its rest bone direction onto the observed one (no
-//!   twist of its own: positions carry no information about a limb's twist);
+//!   parent, from its rest bone direction onto the observed one (no twist of
+//!   its own: joint positions carry no information about a limb's twist);
 //! - end joints (`Head`, hands, toes): no rotation relative to the parent.
 //!
-//! Local rotations are `G_parentᵀ · G`; Euler angles (`Z Y X` as listed, the
-//! BVH convention) are unwrapped frame to frame so channels never jump by
-//! 360° or flip between the two equivalent solutions.
+//! Local rotations are `G_parentᵀ · G`. Euler angles: the root's channels are
+//! `Z Y X` (CMU's order); every other joint gets, of the six orders, the one
+//! whose middle angle stays furthest from ±90° (gimbal lock) over the motion.
+//! Angles are unwrapped frame to frame, so channels never jump by 360° or
+//! switch between the two equivalent solutions.
 //!
 //! Exactness: every bone points exactly along the observed bone, so a motion
 //! whose bone lengths are constant (real motion) is reproduced exactly (to
 //! the written decimals). When bone lengths vary (generated motion), the only
 //! error is the difference between each bone's length at a frame and its
 //! mean, accumulated from the root along the chain ([`with_mean_bone_lengths`]
-//! computes exactly that prediction). The shortest rotation is singular only
-//! when a bone points exactly opposite its rest direction relative to its
-//! parent (a knee or elbow folded by 180°, a thigh along the spine), which the
-//! human body does not reach.
+//! computes exactly that prediction). Continuity: the shortest rotation is
+//! singular only when a bone points opposite its rest direction relative to
+//! its parent (opposite its mean: a knee bent backwards; for an upper arm,
+//! across the chest to the other side), so rotations follow the bones
+//! smoothly; the root's `Z Y X` channels turn fast when the body faces ±x
+//! while leaning (gimbal lock of the mandated order).
 
 use crate::{Motion, RenderError};
-use mocap_ingest::math::{add, cross, dot, norm, scale, sub, Mat3, Vec3};
+use mocap_ingest::math::{add, cross, dot, norm, scale, sub, Axis, Mat3, Vec3};
 use mocap_ingest::skeleton::{Pose, JOINT_PARENTS, NUM_JOINTS};
+
+/// The vector that fixes a joint's twist (its +x axis, made orthogonal to
+/// the aim).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Side {
+    /// From kept joint `.1` to kept joint `.0`.
+    Line(usize, usize),
+    /// The sum of the unit hip line and the unit shoulder line.
+    Blend,
+}
 
 /// How a joint of the exported skeleton gets its orientation.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Orient {
-    /// Aim (+y) at kept joint `aim` from kept joint `from`; twist (+x) from the
-    /// line between kept joints `side.0` and `side.1`.
-    Frame {
-        /// Kept joint the frame starts at.
+    /// The frame whose +y points from kept joint `from` to kept joint `to`,
+    /// twisted by `side`, relative to the same frame in the rest pose.
+    Aim {
+        /// Kept joint the aim starts at.
         from: usize,
-        /// Kept joint the +y axis points to.
-        aim: usize,
-        /// Kept joints whose difference gives the +x axis.
-        side: (usize, usize),
+        /// Kept joint the aim points to.
+        to: usize,
+        /// What fixes the twist.
+        side: Side,
     },
-    /// Aim at `Spine1` from `Spine`, twist from the sum of the unit hip and
-    /// shoulder lines.
-    SpineBlend,
     /// Shortest rotation relative to the parent onto the bone to its one child.
     Swing,
     /// No rotation relative to the parent (end joints).
@@ -93,6 +105,10 @@ const fn j(name: &'static str, parent: usize, at: usize, kept: bool, orient: Ori
 
 use Orient::{Fixed, Swing};
 
+const fn aim(from: usize, to: usize, side: Side) -> Orient {
+    Orient::Aim { from, to, side }
+}
+
 /// The exported skeleton, parents before children (depth-first, the order
 /// of the BVH hierarchy and of the channels).
 pub const SKELETON: [BvhJoint; 25] = [
@@ -101,11 +117,7 @@ pub const SKELETON: [BvhJoint; 25] = [
         parent: None,
         at: 0,
         kept: true,
-        orient: Orient::Frame {
-            from: 0,
-            aim: 9,
-            side: (1, 5),
-        },
+        orient: aim(0, 9, Side::Line(1, 5)),
     },
     j("LHipJoint", 0, 0, false, Swing),
     j("LeftUpLeg", 1, 1, true, Swing),
@@ -118,18 +130,8 @@ pub const SKELETON: [BvhJoint; 25] = [
     j("RightFoot", 8, 7, true, Swing),
     j("RightToeBase", 9, 8, true, Fixed),
     j("LowerBack", 0, 0, false, Swing),
-    j("Spine", 11, 9, true, Orient::SpineBlend),
-    j(
-        "Spine1",
-        12,
-        10,
-        true,
-        Orient::Frame {
-            from: 10,
-            aim: 11,
-            side: (13, 16),
-        },
-    ),
+    j("Spine", 11, 9, true, aim(9, 10, Side::Blend)),
+    j("Spine1", 12, 10, true, aim(10, 11, Side::Line(13, 16))),
     j("Neck", 13, 10, false, Swing),
     j("Neck1", 14, 11, true, Swing),
     j("Head", 15, 12, true, Fixed),
@@ -177,6 +179,8 @@ pub struct Solved {
     pub root: Vec<Vec3>,
     /// Local rotations per frame, one per joint of [`SKELETON`].
     pub local: Vec<[Mat3; NUM_BVH_JOINTS]>,
+    /// The rotation channels' order of each joint (listed, outermost first).
+    pub orders: [[Axis; 3]; NUM_BVH_JOINTS],
 }
 
 fn unit(v: Vec3) -> Option<Vec3> {
@@ -236,19 +240,16 @@ fn bone(pose: &Pose, b: usize) -> Option<Vec3> {
     only_child(b).map(|c| sub(pose[SKELETON[c].at], pose[SKELETON[b].at]))
 }
 
-/// The frame of an [`Orient::Frame`] or [`Orient::SpineBlend`] joint.
-fn torso_frame(pose: &Pose, o: Orient) -> Option<Mat3> {
-    match o {
-        Orient::Frame { from, aim, side } => {
-            aim_frame(sub(pose[aim], pose[from]), sub(pose[side.0], pose[side.1]))
-        }
-        Orient::SpineBlend => {
-            let hips = unit(sub(pose[1], pose[5]))?;
-            let shoulders = unit(sub(pose[13], pose[16]))?;
-            aim_frame(sub(pose[10], pose[9]), add(hips, shoulders))
-        }
-        _ => None,
-    }
+/// The observed frame of an [`Orient::Aim`] joint.
+fn aim_orient(pose: &Pose, o: Orient) -> Option<Mat3> {
+    let Orient::Aim { from, to, side } = o else {
+        return None;
+    };
+    let side = match side {
+        Side::Line(a, b) => sub(pose[a], pose[b]),
+        Side::Blend => add(unit(sub(pose[1], pose[5]))?, unit(sub(pose[13], pose[16]))?),
+    };
+    aim_frame(sub(pose[to], pose[from]), side)
 }
 
 /// Canonical rest direction of a bone that is not out of the pelvis or the
@@ -297,55 +298,6 @@ pub fn with_mean_bone_lengths(poses: &[Pose]) -> Vec<Pose> {
         .collect()
 }
 
-/// Rest offsets from the motion's mean bone lengths and mean pelvis and chest
-/// geometry.
-fn rest_pose(m: &Motion) -> Result<Rest, RenderError> {
-    let err = |message: String| RenderError::Motion {
-        id: m.id.clone(),
-        message,
-    };
-    let len = mean_bone_lengths(&m.poses);
-    // Mean direction of the bones out of the pelvis and chest, in their frame.
-    let mut local_sum = [[0.0; 3]; NUM_BVH_JOINTS];
-    for pose in &m.poses {
-        for (b, joint) in SKELETON.iter().enumerate() {
-            let Some(parent) = joint.parent else { continue };
-            let frame_joint = &SKELETON[parent];
-            if joint.kept || !matches!(frame_joint.orient, Orient::Frame { .. }) {
-                continue;
-            }
-            // A helper out of a torso frame: its child's bone in that frame.
-            if let (Some(f), Some(v)) = (torso_frame(pose, frame_joint.orient), bone(pose, b)) {
-                if let Some(u) = unit(f.transpose().apply(v)) {
-                    local_sum[b] = add(local_sum[b], u);
-                }
-            }
-        }
-    }
-    let mut offsets = [[0.0; 3]; NUM_BVH_JOINTS];
-    let mut end_sites = [[0.0; 3]; NUM_BVH_JOINTS];
-    for (c, joint) in SKELETON.iter().enumerate() {
-        let Some(parent) = joint.parent else { continue };
-        if !joint.kept {
-            continue; // helpers sit at their parent's position
-        }
-        let l = len[joint.at];
-        if !(l.is_finite() && l > 1e-9) {
-            return Err(err(format!("bone {} has no length (mean {l})", joint.name)));
-        }
-        let dir = if SKELETON[parent].kept {
-            canonical_direction(joint.at)
-        } else {
-            unit(local_sum[parent]).unwrap_or_else(|| canonical_direction(joint.at))
-        };
-        offsets[c] = scale(dir, l);
-        if only_child(c).is_none() {
-            end_sites[c] = scale(offsets[c], 0.5);
-        }
-    }
-    Ok(Rest { offsets, end_sites })
-}
-
 /// Solve the rotations of every joint of [`SKELETON`] at every frame of `m`.
 pub fn solve(m: &Motion) -> Result<Solved, RenderError> {
     let err = |message: String| RenderError::Motion {
@@ -360,35 +312,81 @@ pub fn solve(m: &Motion) -> Result<Solved, RenderError> {
             return Err(err(format!("non-finite joint position at frame {f}")));
         }
     }
-    let rest = rest_pose(m)?;
-    let mut local = Vec::with_capacity(m.poses.len());
-    let mut prev_global: Option<[Mat3; NUM_BVH_JOINTS]> = None;
-    for pose in &m.poses {
-        let mut g = [Mat3::IDENTITY; NUM_BVH_JOINTS];
-        let mut l = [Mat3::IDENTITY; NUM_BVH_JOINTS];
-        for (b, joint) in SKELETON.iter().enumerate() {
-            let parent_g = joint.parent.map_or(Mat3::IDENTITY, |p| g[p]);
-            let previous = prev_global.map(|pg| pg[b]);
-            g[b] = match joint.orient {
-                Orient::Frame { .. } | Orient::SpineBlend => torso_frame(pose, joint.orient),
-                Orient::Swing => bone(pose, b).and_then(unit).and_then(|d| {
-                    let rest_dir = only_child(b).and_then(|c| unit(rest.offsets[c]))?;
-                    Some(parent_g.mul(&swing(rest_dir, parent_g.transpose().apply(d))))
-                }),
-                Orient::Fixed => Some(parent_g),
+    let len = mean_bone_lengths(&m.poses);
+    for joint in SKELETON.iter().filter(|j| j.kept && j.parent.is_some()) {
+        let l = len[joint.at];
+        if !(l.is_finite() && l > 1e-9) {
+            return Err(err(format!("bone {} has no length (mean {l})", joint.name)));
+        }
+    }
+    let n = m.poses.len();
+    let mut offsets = [[0.0; 3]; NUM_BVH_JOINTS];
+    let mut g = vec![[Mat3::IDENTITY; NUM_BVH_JOINTS]; n];
+    let mut local = vec![[Mat3::IDENTITY; NUM_BVH_JOINTS]; n];
+    // Joint by joint (parents first), every frame: a Swing joint needs its
+    // bone's mean direction over the motion in its parent's frame.
+    for (b, joint) in SKELETON.iter().enumerate() {
+        let parents: Vec<Mat3> = (0..n)
+            .map(|t| joint.parent.map_or(Mat3::IDENTITY, |p| g[t][p]))
+            .collect();
+        let solved: Vec<Option<Mat3>> = match joint.orient {
+            Orient::Aim { to, .. } => {
+                // The aim is +y: a kept child at the aimed joint lies along it.
+                if let Some(c) = (0..NUM_BVH_JOINTS)
+                    .find(|&c| SKELETON[c].parent == Some(b) && SKELETON[c].at == to)
+                {
+                    offsets[c] = [0.0, len[to], 0.0];
+                }
+                m.poses
+                    .iter()
+                    .map(|pose| aim_orient(pose, joint.orient))
+                    .collect()
             }
+            Orient::Swing => {
+                let c = only_child(b).unwrap_or(b);
+                let dirs: Vec<Option<Vec3>> = (0..n)
+                    .map(|t| Some(parents[t].transpose().apply(unit(bone(&m.poses[t], b)?)?)))
+                    .collect();
+                // Rest direction: for upper arms the T-pose's (sideways: the
+                // shortest rotation from it is singular only for an arm
+                // pointing across the chest to the other side, whereas arms
+                // go both down and overhead); for the other bones the mean
+                // direction relative to the parent, so the singular
+                // direction is the one opposite where the bone usually is
+                // (a knee or elbow bent backwards, a foot pointing back).
+                let at = SKELETON[c].at;
+                let mean = if matches!(at, 14 | 17) {
+                    canonical_direction(at)
+                } else {
+                    unit(dirs.iter().flatten().fold([0.0; 3], |a, d| add(a, *d)))
+                        .unwrap_or_else(|| canonical_direction(at))
+                };
+                offsets[c] = scale(mean, len[SKELETON[c].at]);
+                dirs.iter()
+                    .enumerate()
+                    .map(|(t, d)| d.map(|d| parents[t].mul(&swing(mean, d))))
+                    .collect()
+            }
+            Orient::Fixed => parents.iter().map(|p| Some(*p)).collect(),
+        };
+        for t in 0..n {
             // A degenerate frame (zero-length bone, collinear torso) keeps
             // the previous frame's orientation.
-            .or(previous)
-            .unwrap_or(parent_g);
-            l[b] = parent_g.transpose().mul(&g[b]);
+            let previous = t.checked_sub(1).map(|p| g[p][b]);
+            g[t][b] = solved[t].or(previous).unwrap_or(parents[t]);
+            local[t][b] = parents[t].transpose().mul(&g[t][b]);
         }
-        prev_global = Some(g);
-        local.push(l);
+    }
+    let mut end_sites = [[0.0; 3]; NUM_BVH_JOINTS];
+    for (c, e) in end_sites.iter_mut().enumerate() {
+        if only_child(c).is_none() && (0..NUM_BVH_JOINTS).all(|k| SKELETON[k].parent != Some(c)) {
+            *e = scale(offsets[c], 0.5);
+        }
     }
     Ok(Solved {
-        rest,
+        rest: Rest { offsets, end_sites },
         root: m.poses.iter().map(|p| p[0]).collect(),
+        orders: channel_orders(&local),
         local,
     })
 }
@@ -419,27 +417,75 @@ pub fn forward(s: &Solved, frame: usize) -> Pose {
     out
 }
 
-/// Euler angles in degrees `(z, y, x)` with `R = Rz · Ry · Rx`, chosen of
-/// the two equivalent solutions and the multiples of 360° to be closest to
-/// `prev` (continuity over time); without `prev`, the one with `|y| ≤ 90°`.
-pub fn euler_zyx(r: &Mat3, prev: Option<[f64; 3]>) -> [f64; 3] {
-    let m = &r.0;
-    let sy = (-m[2][0]).clamp(-1.0, 1.0);
-    let y = sy.asin();
-    let cy = (m[2][1].powi(2) + m[2][2].powi(2)).sqrt();
-    let (z, x) = if cy > 1e-9 {
-        (m[1][0].atan2(m[0][0]), m[2][1].atan2(m[2][2]))
-    } else {
-        // Gimbal lock: only z ∓ x is defined; keep the previous x.
-        let x = prev.map_or(0.0, |p| p[2].to_radians());
-        let z = if sy > 0.0 {
-            x - m[0][1].atan2(m[1][1])
-        } else {
-            (-m[0][1]).atan2(m[1][1]) - x
+/// The six orders a joint's rotation channels may take.
+const ORDERS: [[Axis; 3]; 6] = [
+    [Axis::Z, Axis::Y, Axis::X],
+    [Axis::Z, Axis::X, Axis::Y],
+    [Axis::Y, Axis::Z, Axis::X],
+    [Axis::X, Axis::Y, Axis::Z],
+    [Axis::Y, Axis::X, Axis::Z],
+    [Axis::X, Axis::Z, Axis::Y],
+];
+
+/// The channel order of each joint: `Z Y X` for the root (CMU's order) and,
+/// for every other joint, of the six orders the one whose middle angle
+/// stays furthest from ±90° (gimbal lock) over the motion, so the Euler
+/// angles stay well-conditioned; ties go to `Z Y X`.
+fn channel_orders(local: &[[Mat3; NUM_BVH_JOINTS]]) -> [[Axis; 3]; NUM_BVH_JOINTS] {
+    let mut out = [ORDERS[0]; NUM_BVH_JOINTS];
+    for (b, o) in out.iter_mut().enumerate().skip(1) {
+        let worst = |order: &[Axis; 3]| {
+            let [i, _, k] = order.map(axis_index);
+            local.iter().map(|l| l[b].0[i][k].abs()).fold(0.0, f64::max)
         };
-        (z, x)
+        let mut best = (f64::INFINITY, ORDERS[0]);
+        for order in ORDERS {
+            let w = worst(&order);
+            if w < best.0 - 1e-9 {
+                best = (w, order);
+            }
+        }
+        *o = best.1;
+    }
+    out
+}
+
+fn axis_index(a: Axis) -> usize {
+    match a {
+        Axis::X => 0,
+        Axis::Y => 1,
+        Axis::Z => 2,
+    }
+}
+
+/// Angle of a rotation about axis `i` alone.
+fn angle_about(m: &Mat3, i: usize) -> f64 {
+    let (p, q) = ((i + 1) % 3, (i + 2) % 3);
+    m.0[q][p].atan2(m.0[p][p])
+}
+
+/// Euler angles in degrees, in the listed `order` (`R = R(a0)·R(a1)·R(a2)`,
+/// the BVH convention, any three distinct axes), chosen of the two
+/// equivalent solutions and the multiples of 360° to be closest to `prev`
+/// (continuity over time); without `prev`, the one with `|a1| ≤ 90°`.
+pub fn euler(r: &Mat3, order: [Axis; 3], prev: Option<[f64; 3]>) -> [f64; 3] {
+    let [i, j, k] = order.map(axis_index);
+    // +1 for cyclic orders (X Y Z, Y Z X, Z X Y), −1 otherwise.
+    let s = if (j + 3 - i) % 3 == 1 { 1.0 } else { -1.0 };
+    let m = &r.0;
+    let sb = (s * m[i][k]).clamp(-1.0, 1.0);
+    let b = sb.asin();
+    let cb = (1.0 - sb * sb).max(0.0).sqrt();
+    let (a, c) = if cb > 1e-9 {
+        ((-s * m[j][k]).atan2(m[k][k]), (-s * m[i][j]).atan2(m[i][i]))
+    } else {
+        // Gimbal lock: only a combination of a and c is defined; keep the
+        // previous c and find a.
+        let c = prev.map_or(0.0, |p| p[2].to_radians());
+        let inner = Mat3::rotation(order[1], b).mul(&Mat3::rotation(order[2], c));
+        (angle_about(&r.mul(&inner.transpose()), i), c)
     };
-    let deg = [z.to_degrees(), y.to_degrees(), x.to_degrees()];
+    let deg = [a.to_degrees(), b.to_degrees(), c.to_degrees()];
     let Some(p) = prev else { return deg };
     let alt = [deg[0] + 180.0, 180.0 - deg[1], deg[2] + 180.0];
     let near = |c: [f64; 3]| [0, 1, 2].map(|k| p[k] + wrap(c[k] - p[k]));
@@ -465,7 +511,6 @@ fn wrap(d: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use mocap_ingest::math::Axis;
 
     /// A hand-built T-pose matching the canonical rest directions: facing
     /// +z, left = +x, hips at height 10.
@@ -541,16 +586,26 @@ mod tests {
         bent[15] = [7.0, 15.0, 3.0];
         let s = solve_poses(vec![t_pose(), bent]);
         let elbow = index("LeftForeArm");
-        for (b, r) in s.local[1].iter().enumerate() {
+        // From the first frame to the second, only the elbow turns: 90°
+        // about −y (the rest pose, the mean of the two, is half bent).
+        for (b, joint) in SKELETON.iter().enumerate() {
+            let turn = s.local[1][b].mul(&s.local[0][b].transpose());
             let want = if b == elbow {
                 Mat3::rotation(Axis::Y, -std::f64::consts::FRAC_PI_2)
             } else {
                 Mat3::IDENTITY
             };
-            assert!(close(r, &want), "{}: {r:?}", SKELETON[b].name);
+            assert!(close(&turn, &want), "{}: {turn:?}", joint.name);
         }
-        let e = euler_zyx(&s.local[1][elbow], None);
-        assert!((e[0]).abs() < 1e-9 && (e[1] + 90.0).abs() < 1e-9 && e[2].abs() < 1e-9);
+        // The rest forearm points halfway; each frame turns 45° from it.
+        let r = 0.5f64.sqrt() * 3.0;
+        assert!(norm(sub(s.rest.offsets[index("LeftHand")], [r, 0.0, r])) < 1e-12);
+        let order = s.orders[elbow];
+        let e = euler(&s.local[1][elbow], order, None);
+        assert!(
+            (e.iter().map(|v| v.abs()).sum::<f64>() - 45.0).abs() < 1e-9,
+            "{e:?}"
+        );
         assert!(max_error(&s, &[t_pose(), bent]) < 1e-12);
     }
 
@@ -564,7 +619,7 @@ mod tests {
         for (b, l) in s.local[1].iter().enumerate().skip(1) {
             assert!(close(l, &Mat3::IDENTITY), "{}", SKELETON[b].name);
         }
-        let e = euler_zyx(&s.local[1][0], None);
+        let e = euler(&s.local[1][0], [Axis::Z, Axis::Y, Axis::X], None);
         assert!(e[0].abs() < 1e-9 && (e[1] - 30.0).abs() < 1e-9 && e[2].abs() < 1e-9);
         assert!(max_error(&s, &[t_pose(), turned]) < 1e-12);
         // Twisting the pelvis alone (hips turned, chest facing forward) puts
@@ -581,24 +636,77 @@ mod tests {
     }
 
     #[test]
-    fn euler_angles_stay_continuous_through_a_full_turn() {
-        let mut prev = None;
-        for k in 0..=72 {
-            let a = (k as f64 * 10.0).to_radians();
-            let r = Mat3::rotation(Axis::Y, a).mul(&Mat3::rotation(Axis::X, 0.3));
-            let e = euler_zyx(&r, prev);
-            let back = Mat3::euler_listed(&[Axis::Z, Axis::Y, Axis::X], &e.map(f64::to_radians));
-            assert!(close(&back, &r), "{k}: {e:?}");
+    fn euler_angles_invert_every_order_and_stay_continuous() {
+        use Axis::{X, Y, Z};
+        let orders = [
+            [Z, Y, X],
+            [Z, X, Y],
+            [Y, Z, X],
+            [X, Y, Z],
+            [Y, X, Z],
+            [X, Z, Y],
+        ];
+        for order in orders {
+            // Two full turns about the middle axis through gimbal lock,
+            // with a tilt about the first.
+            let mut prev = None;
+            for k in 0..=72 {
+                let a = (k as f64 * 10.0).to_radians();
+                let r = Mat3::rotation(order[0], 0.3)
+                    .mul(&Mat3::rotation(order[1], a))
+                    .mul(&Mat3::rotation(order[2], -0.2));
+                let e = euler(&r, order, prev);
+                let back = Mat3::euler_listed(&order, &e.map(f64::to_radians));
+                assert!(close(&back, &r), "{order:?} {k}: {e:?}");
+                if let Some(p) = prev {
+                    let step: f64 = (0..3).map(|i| (e[i] - p[i]).abs()).sum();
+                    assert!(step < 25.0, "{order:?} jump at {k}: {p:?} -> {e:?}");
+                }
+                prev = Some(e);
+            }
+        }
+    }
+
+    #[test]
+    fn a_bending_knee_is_a_hinge_all_the_way() {
+        // Shin and foot turn together about the knee's x axis, 0° to 175°:
+        // only the knee rotates, about x, and its channel follows smoothly.
+        let knee = index("LeftLeg");
+        let poses: Vec<Pose> = (0..=35)
+            .map(|k| {
+                let r = Mat3::rotation(Axis::X, (k as f64 * 5.0).to_radians());
+                let mut p = t_pose();
+                for j in [3, 4] {
+                    p[j] = add(p[2], r.apply(sub(t_pose()[j], p[2])));
+                }
+                p
+            })
+            .collect();
+        let s = solve_poses(poses.clone());
+        let order = s.orders[knee];
+        let mut prev: Option<[f64; 3]> = None;
+        for (k, l) in s.local.iter().enumerate() {
+            let want = Mat3::rotation(Axis::X, (k as f64 * 5.0).to_radians());
+            assert!(
+                close(&l[knee].mul(&s.local[0][knee].transpose()), &want),
+                "{k}"
+            );
+            assert!(close(&l[index("LeftFoot")], &Mat3::IDENTITY), "{k}");
+            let e = euler(&l[knee], order, prev);
+            // One channel moves, by 5° a frame; the others stay at 0.
             if let Some(p) = prev {
-                let step: f64 = e
-                    .iter()
-                    .zip(&p)
-                    .map(|(x, y): (&f64, &f64)| (x - y).abs())
-                    .sum();
-                assert!(step < 25.0, "jump at {k}: {p:?} -> {e:?}");
+                let steps: Vec<f64> = (0..3).map(|i| (e[i] - p[i]).abs()).collect();
+                assert!(
+                    (steps.iter().sum::<f64>() - 5.0).abs() < 1e-6,
+                    "{k}: {steps:?}"
+                );
             }
             prev = Some(e);
         }
+        assert!(max_error(&s, &poses) < 1e-12);
+        // The knee turns about x: x is not the middle axis (gimbal lock).
+        assert_ne!(order[1], Axis::X);
+        assert_eq!(s.orders[0], [Axis::Z, Axis::Y, Axis::X]);
     }
 
     #[test]
