@@ -39,6 +39,9 @@ enum Command {
     /// Turn motions Parquet files (from `sample`) into BVH files, one per
     /// motion, and check each by reading it back.
     Export(motion::ExportArgs),
+    /// Open a run's 3-D viewer in headless Chromium: fail on a JavaScript
+    /// error, screenshot the generated set and the real/reconstruction pairs.
+    Screenshot(motion::ScreenshotArgs),
     /// Measure a trained run against real windows: ELBO, diversity,
     /// smoothness, bone lengths, foot skating, Fréchet distance.
     Eval(motion::EvalArgs),
@@ -90,6 +93,7 @@ fn main() -> Result<()> {
         Command::Train(args) => train::run(args),
         Command::Sample(args) => motion::sample(args),
         Command::Export(args) => motion::export(args),
+        Command::Screenshot(args) => motion::screenshot(args),
         Command::Eval(args) => motion::eval(args),
         Command::Audit(args) => audit::run(args),
         Command::BenchTrain {

@@ -68,6 +68,23 @@ pub struct EvalArgs {
     out: Option<PathBuf>,
 }
 
+/// `cargo xtask screenshot` options.
+#[derive(Args, Debug)]
+pub struct ScreenshotArgs {
+    /// A run directory: its RUN/samples/viewer.html.
+    #[arg(long, default_value = "runs/vrnn")]
+    run: PathBuf,
+    /// A viewer.html (instead of --run).
+    #[arg(long)]
+    html: Option<PathBuf>,
+    /// Output directory (default: beside the viewer).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Frame to show.
+    #[arg(long, default_value_t = 60)]
+    frame: usize,
+}
+
 /// `cargo xtask export` options.
 #[derive(Args, Debug)]
 pub struct ExportArgs {
@@ -307,6 +324,43 @@ fn print_round_trips(sets: &[(&str, Vec<RoundTrip>)]) {
             dist(max(|r| r.residual_max))
         );
     }
+}
+
+/// `cargo xtask screenshot`: open the 3-D viewer in headless Chromium, fail
+/// on a JavaScript error, and screenshot the generated set and the
+/// real-vs-reconstruction pairs (overlaid).
+pub fn screenshot(a: ScreenshotArgs) -> Result<()> {
+    let html = a
+        .html
+        .clone()
+        .unwrap_or_else(|| a.run.join("samples").join("viewer.html"));
+    if !html.is_file() {
+        bail!(
+            "{}: no viewer; run `cargo xtask sample --run {}` first (or pass --html)",
+            html.display(),
+            a.run.display()
+        );
+    }
+    let chromium = motion_render::viewer::find_chromium().context(
+        "headless Chromium not found: install it (Debian: apt-get install chromium) or set CHROMIUM",
+    )?;
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| html.parent().unwrap_or(Path::new(".")).to_path_buf());
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    for (file, query) in [
+        ("viewer_samples.png", format!("?set=0&frame={}", a.frame)),
+        (
+            "viewer_pairs.png",
+            format!("?set=1&overlay=1&frame={}", a.frame),
+        ),
+    ] {
+        let png = out.join(file);
+        motion_render::viewer::screenshot(&chromium, &html, &query, &png, (1200, 800))?;
+        println!("{} -> {} (no JavaScript error)", query, png.display());
+    }
+    Ok(())
 }
 
 /// A distance for the round-trip table: fixed above 0.01, else scientific.

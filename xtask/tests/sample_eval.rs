@@ -26,6 +26,53 @@ fn apng_frames(path: &Path) -> (u32, u32, u32) {
     (info.width, info.height, frames)
 }
 
+/// The 3-D viewer in headless Chromium: screenshots of both sets, and a
+/// page with a JavaScript error fails. Chromium is mandatory under CI
+/// (`.ci/run` sets MOCAP_REQUIRE_CHROMIUM=1); elsewhere the check is skipped
+/// with a message when it is missing.
+fn viewer_in_chromium(samples: &Path, tmp: &Path) {
+    if motion_render::viewer::find_chromium().is_none() {
+        assert!(
+            std::env::var_os("MOCAP_REQUIRE_CHROMIUM").is_none(),
+            "MOCAP_REQUIRE_CHROMIUM is set but no chromium is on PATH (apt-get install chromium)"
+        );
+        eprintln!(
+            "SKIPPED the viewer check: no chromium on PATH (Debian: apt-get install chromium)"
+        );
+        return;
+    }
+    let shots = tmp.join("shots");
+    let o = xtask()
+        .args(["screenshot", "--frame", "20", "--html"])
+        .arg(samples.join("viewer.html"))
+        .arg("--out")
+        .arg(&shots)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["viewer_samples.png", "viewer_pairs.png"] {
+        let (w, h, _) = apng_frames(&shots.join(f));
+        assert_eq!((w, h), (1200, 800), "{f}");
+    }
+    // A page that throws is a failure.
+    let broken = tmp.join("broken");
+    std::fs::create_dir_all(&broken).unwrap();
+    let html = std::fs::read_to_string(samples.join("viewer.html")).unwrap();
+    std::fs::write(
+        broken.join("viewer.html"),
+        html.replace("status('ok');", "noSuchFunction(); status('ok');"),
+    )
+    .unwrap();
+    let o = xtask()
+        .args(["screenshot", "--html"])
+        .arg(broken.join("viewer.html"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("noSuchFunction"), "{err}");
+}
+
 #[test]
 fn sample_and_eval_write_what_they_promise() {
     let tmp = tempfile::tempdir().unwrap();
@@ -110,6 +157,8 @@ fn sample_and_eval_write_what_they_promise() {
     for needle in ["<script src", "<link", "<img", "<iframe"] {
         assert!(!html.contains(needle), "viewer.html loads {needle}");
     }
+
+    viewer_in_chromium(&s, tmp.path());
 
     // Every motion as BVH, named by its id, read back by the project's reader.
     for id in ["sample_000", "sample_002", "val_000", "recon_001"] {

@@ -11,7 +11,7 @@
 
 use crate::io::motions_json;
 use crate::{Motion, RenderError};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// three.js (and OrbitControls) as one classic script defining `THREE`.
 pub const THREE_BUNDLE: &str = include_str!("../viewer/vendor/three.bundle.js");
@@ -87,6 +87,138 @@ body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
 /// Write `viewer.html` (atomically).
 pub fn write_viewer(path: &Path, sets: &[MotionSet]) -> Result<(), RenderError> {
     crate::write_file(path, viewer_html(sets).as_bytes())
+}
+
+/// A headless Chromium (Debian's `chromium`): `$CHROMIUM` if set, else the
+/// first of `chromium`, `chromium-browser`, `google-chrome` on `PATH`.
+pub fn find_chromium() -> Option<PathBuf> {
+    if let Some(p) = std::env::var_os("CHROMIUM").filter(|p| !p.is_empty()) {
+        return Some(PathBuf::from(p));
+    }
+    let path = std::env::var_os("PATH")?;
+    ["chromium", "chromium-browser", "google-chrome"]
+        .iter()
+        .flat_map(|name| std::env::split_paths(&path).map(move |d| d.join(name)))
+        .find(|p| p.is_file())
+}
+
+/// Run headless Chromium on `url` with `args`, at most 120 s; its stdout
+/// and stderr.
+fn run_chromium(
+    chromium: &Path,
+    args: &[String],
+    url: &str,
+) -> Result<(String, String), RenderError> {
+    static RUN: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let err = |message: String| RenderError::Image {
+        path: chromium.to_path_buf(),
+        message,
+    };
+    let profile = std::env::temp_dir().join(format!(
+        "motion-viewer-{}-{}",
+        std::process::id(),
+        RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    ));
+    let mut child = std::process::Command::new(chromium)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
+            "--no-first-run",
+            "--enable-logging=stderr",
+            "--virtual-time-budget=3000",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .args(args)
+        .arg(url)
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .map_err(|e| err(format!("cannot start: {e}")))?;
+    let (mut out, mut log) = (child.stdout.take(), child.stderr.take());
+    let reader = std::thread::spawn(move || {
+        use std::io::Read;
+        let (mut a, mut b) = (String::new(), String::new());
+        if let Some(o) = out.as_mut() {
+            let _ = o.read_to_string(&mut a);
+        }
+        if let Some(l) = log.as_mut() {
+            let _ = l.read_to_string(&mut b);
+        }
+        (a, b)
+    });
+    let started = std::time::Instant::now();
+    let status = loop {
+        match child.try_wait() {
+            Ok(Some(s)) => break Some(s),
+            Ok(None) if started.elapsed().as_secs() < 120 => {
+                std::thread::sleep(std::time::Duration::from_millis(50))
+            }
+            _ => {
+                let _ = child.kill();
+                let _ = child.wait();
+                break None;
+            }
+        }
+    };
+    let (stdout, stderr) = reader.join().unwrap_or_default();
+    let _ = std::fs::remove_dir_all(&profile);
+    match status {
+        Some(s) if s.success() => Ok((stdout, stderr)),
+        Some(s) => Err(err(format!("exited with {s}: {}", stderr.trim()))),
+        None => Err(err("did not finish in 120 s".into())),
+    }
+}
+
+/// Open `html` (with `query`, e.g. `?set=1&overlay=1&frame=60`) in headless
+/// Chromium, check that the viewer started without a JavaScript error, and
+/// write a `width × height` screenshot to `png`.
+pub fn screenshot(
+    chromium: &Path,
+    html: &Path,
+    query: &str,
+    png: &Path,
+    (width, height): (u32, u32),
+) -> Result<(), RenderError> {
+    let abs = std::fs::canonicalize(html).map_err(|source| RenderError::Io {
+        path: html.to_path_buf(),
+        source,
+    })?;
+    let url = format!("file://{}{query}", abs.display());
+    let fail = |message: String| RenderError::Image {
+        path: html.to_path_buf(),
+        message,
+    };
+    let (dom, log) = run_chromium(chromium, &["--dump-dom".to_string()], &url)?;
+    let status = dom
+        .split("data-status=\"")
+        .nth(1)
+        .and_then(|s| s.split('"').next())
+        .unwrap_or("missing (the viewer's script did not run)");
+    if status != "ok" {
+        return Err(fail(format!("viewer status: {status}")));
+    }
+    if let Some(line) = log.lines().find(|l| l.contains("Uncaught")) {
+        return Err(fail(format!("JavaScript error: {line}")));
+    }
+    let mut name = png.file_name().unwrap_or_default().to_os_string();
+    name.push(".tmp.png");
+    let tmp = png.with_file_name(name);
+    let (_, log) = run_chromium(
+        chromium,
+        &[
+            format!("--window-size={width},{height}"),
+            format!("--screenshot={}", tmp.display()),
+        ],
+        &url,
+    )?;
+    if let Some(line) = log.lines().find(|l| l.contains("Uncaught")) {
+        return Err(fail(format!("JavaScript error: {line}")));
+    }
+    std::fs::rename(&tmp, png).map_err(|e| fail(format!("no screenshot ({}): {e}", tmp.display())))
 }
 
 #[cfg(test)]
