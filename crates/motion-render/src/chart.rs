@@ -32,6 +32,25 @@ fn style(rgb: [u8; 3], width: u32) -> ShapeStyle {
 
 type DrawErr = DrawingAreaErrorKind<NoError>;
 
+/// A tick label: integers without decimals, others with at most three
+/// significant digits and no trailing zeros.
+pub fn tick(v: &f64) -> String {
+    let v = *v;
+    if v == 0.0 || !v.is_finite() {
+        return "0".into();
+    }
+    if (v - v.round()).abs() < 1e-9 * v.abs().max(1.0) && v.abs() < 1e7 {
+        return format!("{v:.0}");
+    }
+    let decimals = (2 - v.abs().log10().floor() as i32).clamp(0, 8) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
 /// Range `[lo, hi]` padded by 5% (or widened when empty).
 fn padded(lo: f64, hi: f64) -> Range<f64> {
     if !(lo.is_finite() && hi.is_finite()) {
@@ -66,6 +85,9 @@ where
         .configure_mesh()
         .x_desc(xlabel)
         .y_desc(ylabel)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
+        .y_labels(12)
         .label_style((FONT_FAMILY, 14))
         .axis_desc_style((FONT_FAMILY, 16))
         .bold_line_style(RGBColor(225, 225, 225))
@@ -117,12 +139,18 @@ pub fn line_chart(
     let mut canvas = Canvas::new(SIZE.0, SIZE.1)?;
     let labels = (title, xlabel, ylabel);
     let r = if y0 > 0.0 && y1 / y0 > 20.0 {
+        // Ticks at 1, 2 and 5 times the powers of ten in range.
+        let (lo, hi) = (y0 / 1.2, y1 * 1.2);
+        let ticks: Vec<f64> = (lo.log10().floor() as i32..=hi.log10().ceil() as i32)
+            .flat_map(|e| [1.0, 2.0, 5.0].map(|m| m * 10f64.powi(e)))
+            .filter(|v| (lo..=hi).contains(v))
+            .collect();
         draw_lines(
             &mut canvas,
             labels,
             series,
             x,
-            (y0 / 1.2..y1 * 1.2).log_scale(),
+            (lo..hi).log_scale().with_key_points(ticks),
         )
     } else {
         draw_lines(&mut canvas, labels, series, x, padded(y0, y1))
@@ -180,6 +208,8 @@ pub fn histogram(
             .configure_mesh()
             .x_desc(xlabel)
             .y_desc("count")
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .label_style((FONT_FAMILY, 14))
             .axis_desc_style((FONT_FAMILY, 16))
             .bold_line_style(RGBColor(225, 225, 225))
@@ -219,6 +249,23 @@ mod tests {
         let mut buf = vec![0; r.output_buffer_size().unwrap()];
         let info = r.next_frame(&mut buf).unwrap();
         (info.width, info.height, buf)
+    }
+
+    #[test]
+    fn tick_labels_are_short() {
+        let t = |v: f64| tick(&v);
+        assert_eq!(
+            [
+                t(1000.0),
+                t(20.0),
+                t(0.5),
+                t(12.6),
+                t(0.00123),
+                t(-3.0),
+                t(2.25)
+            ],
+            ["1000", "20", "0.5", "12.6", "0.00123", "-3", "2.25"]
+        );
     }
 
     #[test]
