@@ -189,7 +189,7 @@ pub fn histogram(
         counts[k.min(bins - 1)] += 1;
     }
     let label = if above > 0 {
-        format!("{} values; {above} above {hi:.3} in the last bar", v.len())
+        format!("{} values; {above} above {} in the last bar", v.len(), tick(&hi))
     } else {
         format!("{} values", v.len())
     };
