@@ -2,7 +2,7 @@
 //! (the training loss) and histograms (the dataset audit). Axes get
 //! `plotters`' round tick values, a light grid, axis titles and a legend.
 
-use crate::canvas::{save_png, Canvas, NoError, FONT_FAMILY};
+use crate::canvas::{save_png, Backend, Canvas, NoError, FONT_FAMILY};
 use crate::RenderError;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
@@ -63,14 +63,24 @@ fn padded(lo: f64, hi: f64) -> Range<f64> {
     lo - pad..hi + pad
 }
 
-fn draw_lines<Y>(
+/// The chart context every chart draws its data on.
+type Chart<'a, 'b, X, Y> = ChartContext<
+    'a,
+    Backend<'b>,
+    Cartesian2d<<X as AsRangedCoord>::CoordDescType, <Y as AsRangedCoord>::CoordDescType>,
+>;
+
+/// A chart on `canvas`: title, axes with round tick labels, a light grid,
+/// the data drawn by `data` (which labels its series), a legend.
+fn plot<X, Y>(
     canvas: &mut Canvas,
     (title, xlabel, ylabel): (&str, &str, &str),
-    series: &[Series],
-    x: Range<f64>,
-    y: Y,
+    (x, y): (X, Y),
+    data: impl FnOnce(&mut Chart<'_, '_, X, Y>) -> Result<(), DrawErr>,
 ) -> Result<(), DrawErr>
 where
+    X: AsRangedCoord<Value = f64>,
+    X::CoordDescType: ValueFormatter<f64>,
     Y: AsRangedCoord<Value = f64>,
     Y::CoordDescType: ValueFormatter<f64>,
 {
@@ -93,19 +103,7 @@ where
         .bold_line_style(RGBColor(225, 225, 225))
         .light_line_style(RGBColor(244, 244, 244))
         .draw()?;
-    for s in series {
-        let st = style(s.color, 2);
-        chart
-            .draw_series(LineSeries::new(
-                s.points
-                    .iter()
-                    .copied()
-                    .filter(|p| p.0.is_finite() && p.1.is_finite()),
-                st,
-            ))?
-            .label(s.name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], st));
-    }
+    data(&mut chart)?;
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperRight)
@@ -114,6 +112,35 @@ where
         .border_style(RGBColor(180, 180, 180))
         .draw()?;
     root.present()
+}
+
+fn draw_lines<Y>(
+    canvas: &mut Canvas,
+    labels: (&str, &str, &str),
+    series: &[Series],
+    x: Range<f64>,
+    y: Y,
+) -> Result<(), DrawErr>
+where
+    Y: AsRangedCoord<Value = f64>,
+    Y::CoordDescType: ValueFormatter<f64>,
+{
+    plot(canvas, labels, (x, y), |chart| {
+        for s in series {
+            let st = style(s.color, 2);
+            chart
+                .draw_series(LineSeries::new(
+                    s.points
+                        .iter()
+                        .copied()
+                        .filter(|p| p.0.is_finite() && p.1.is_finite()),
+                    st,
+                ))?
+                .label(s.name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], st));
+        }
+        Ok(())
+    })
 }
 
 /// A line chart of `series` as a PNG. The y axis is logarithmic when every
@@ -189,50 +216,34 @@ pub fn histogram(
         counts[k.min(bins - 1)] += 1;
     }
     let label = if above > 0 {
-        format!("{} values; {above} above {} in the last bar", v.len(), tick(&hi))
+        format!(
+            "{} values; {above} above {} in the last bar",
+            v.len(),
+            tick(&hi)
+        )
     } else {
         format!("{} values", v.len())
     };
     let top = counts.iter().copied().max().unwrap_or(0).max(1) as f64 * 1.08;
     let width = (hi - lo) / bins as f64;
     let mut canvas = Canvas::new(SIZE.0, SIZE.1)?;
-    let draw = |canvas: &mut Canvas| -> Result<(), DrawErr> {
-        let root = canvas.backend().into_drawing_area();
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, (FONT_FAMILY, 22))
-            .margin(16)
-            .x_label_area_size(48)
-            .y_label_area_size(80)
-            .build_cartesian_2d(lo..hi, 0.0..top)?;
-        chart
-            .configure_mesh()
-            .x_desc(xlabel)
-            .y_desc("count")
-            .x_label_formatter(&tick)
-            .y_label_formatter(&tick)
-            .label_style((FONT_FAMILY, 14))
-            .axis_desc_style((FONT_FAMILY, 16))
-            .bold_line_style(RGBColor(225, 225, 225))
-            .light_line_style(RGBColor(244, 244, 244))
-            .draw()?;
-        let fill = RGBColor(31, 119, 180).filled();
-        chart
-            .draw_series(counts.iter().enumerate().map(|(k, &c)| {
-                let x0 = lo + k as f64 * width;
-                Rectangle::new([(x0, 0.0), (x0 + width * 0.92, c as f64)], fill)
-            }))?
-            .label(label.as_str())
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 16, y + 5)], fill));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .label_font((FONT_FAMILY, 15))
-            .background_style(WHITE.mix(0.85))
-            .border_style(RGBColor(180, 180, 180))
-            .draw()?;
-        root.present()
-    };
-    draw(&mut canvas).map_err(|e| RenderError::Image {
+    let fill = RGBColor(31, 119, 180).filled();
+    let r = plot(
+        &mut canvas,
+        (title, xlabel, "count"),
+        (lo..hi, 0.0..top),
+        |chart| {
+            chart
+                .draw_series(counts.iter().enumerate().map(|(k, &c)| {
+                    let x0 = lo + k as f64 * width;
+                    Rectangle::new([(x0, 0.0), (x0 + width * 0.92, c as f64)], fill)
+                }))?
+                .label(label.as_str())
+                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 16, y + 5)], fill));
+            Ok(())
+        },
+    );
+    r.map_err(|e| RenderError::Image {
         path: path.to_path_buf(),
         message: e.to_string(),
     })?;

@@ -8,4 +8,4 @@ cd "$(dirname "$0")"
 npm ci --no-audit --no-fund
 npm run build
 cp node_modules/three/LICENSE vendor/three.LICENSE
-echo "three $(node -p 'require("three/package.json").version') -> vendor/three.bundle.js ($(wc -c < vendor/three.bundle.js) bytes)"
+echo "three $(node -p 'require("./node_modules/three/package.json").version') -> vendor/three.bundle.js ($(wc -c < vendor/three.bundle.js) bytes)"

@@ -1,7 +1,6 @@
-// The parts of three.js the motion viewer (src/viewer.rs, VIEWER_JS) uses,
-// exposed as the global `THREE` for an inline classic <script>.
-import {
-  AmbientLight,
+// The parts of three.js the motion viewer (src/viewer.js) uses; esbuild
+// bundles them as one classic script whose exports become the global `THREE`.
+export {
   BufferGeometry,
   Color,
   CylinderGeometry,
@@ -15,33 +14,9 @@ import {
   Mesh,
   MeshStandardMaterial,
   PerspectiveCamera,
-  Quaternion,
   Scene,
   SphereGeometry,
   Vector3,
   WebGLRenderer,
 } from 'three';
-import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
-
-window.THREE = {
-  AmbientLight,
-  BufferGeometry,
-  Color,
-  CylinderGeometry,
-  DirectionalLight,
-  Float32BufferAttribute,
-  GridHelper,
-  Group,
-  HemisphereLight,
-  Line,
-  LineBasicMaterial,
-  Mesh,
-  MeshStandardMaterial,
-  OrbitControls,
-  PerspectiveCamera,
-  Quaternion,
-  Scene,
-  SphereGeometry,
-  Vector3,
-  WebGLRenderer,
-};
+export { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
