@@ -101,7 +101,7 @@
     grid.position.set((cols - 1) * spacing / 2, 0, (Math.ceil(cells / cols) - 1) * spacing / 2);
     world.add(grid);
     const centre = new THREE.Vector3(grid.position.x, 14, grid.position.z);
-    const dist = Math.max(60, 0.95 * Math.max(w, h));
+    const dist = Math.max(95, 1.1 * Math.max(w, h));
     camera.position.set(centre.x + dist * 0.55, centre.y + dist * 0.45, centre.z + dist * 0.8);
     controls.target.copy(centre);
     controls.update();
