@@ -245,6 +245,16 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     let bvh = out.join("bvh");
     std::fs::create_dir_all(&bvh)?;
     let mut trips = vec![("generated", motion_render::bvh::write_all(&bvh, &motions)?)];
+    // The first generated motions beside their BVH files read back: what a
+    // rigid skeleton makes of the model's stretching bones.
+    let mut read_back = Vec::new();
+    for m in motions.iter().take(4) {
+        read_back.push(m.clone());
+        read_back.push(motion_render::bvh::read_motion(
+            &bvh.join(format!("{}.bvh", m.id)),
+            &format!("{}_bvh", m.id),
+        )?);
+    }
     let mut sets = vec![MotionSet {
         name: "samples",
         group: 1,
@@ -280,6 +290,11 @@ pub fn sample(a: SampleArgs) -> Result<()> {
             motions: &pairs,
         });
     }
+    sets.push(MotionSet {
+        name: "generated vs its BVH read back",
+        group: 2,
+        motions: &read_back,
+    });
     write_viewer(&out.join("viewer.html"), &sets)?;
     println!("wrote {}:", out.display());
     println!(
@@ -349,13 +364,25 @@ pub fn screenshot(a: ScreenshotArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| html.parent().unwrap_or(Path::new(".")).to_path_buf());
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    for (file, query) in [
-        ("viewer_samples.png", format!("?set=0&frame={}", a.frame)),
-        (
-            "viewer_pairs.png",
-            format!("?set=1&overlay=1&frame={}", a.frame),
-        ),
+    let html_text =
+        std::fs::read_to_string(&html).with_context(|| format!("reading {}", html.display()))?;
+    // The sets in the file, in order; the overlaid ones `sample` writes get
+    // a screenshot each when present.
+    let names: Vec<&str> = html_text
+        .split("\"name\":\"")
+        .skip(1)
+        .filter_map(|t| t.split('"').next())
+        .collect();
+    let mut shots = vec![("viewer_samples.png", format!("?set=0&frame={}", a.frame))];
+    for (name, file) in [
+        ("real vs reconstruction", "viewer_pairs.png"),
+        ("generated vs its BVH read back", "viewer_bvh.png"),
     ] {
+        if let Some(k) = names.iter().position(|n| *n == name) {
+            shots.push((file, format!("?set={k}&overlay=1&frame={}", a.frame)));
+        }
+    }
+    for (file, query) in shots {
         let png = out.join(file);
         motion_render::viewer::screenshot(&chromium, &html, &query, &png, (1200, 800))?;
         println!("{} -> {} (no JavaScript error)", query, png.display());

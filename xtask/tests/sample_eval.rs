@@ -50,7 +50,7 @@ fn viewer_in_chromium(samples: &Path, tmp: &Path) {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for f in ["viewer_samples.png", "viewer_pairs.png"] {
+    for f in ["viewer_samples.png", "viewer_pairs.png", "viewer_bvh.png"] {
         let (w, h, _) = apng_frames(&shots.join(f));
         assert_eq!((w, h), (1200, 800), "{f}");
     }
@@ -154,6 +154,8 @@ fn sample_and_eval_write_what_they_promise() {
     let html = std::fs::read_to_string(s.join("viewer.html")).unwrap();
     assert!(html.contains("\"id\":\"sample_002\"") && html.contains("\"id\":\"recon_001\""));
     assert!(html.contains("OrbitControls") && html.contains("Three.js Authors"));
+    // Generated motions beside their BVH files read back.
+    assert!(html.contains("\"id\":\"sample_002_bvh\""));
     for needle in ["<script src", "<link", "<img", "<iframe"] {
         assert!(!html.contains(needle), "viewer.html loads {needle}");
     }

@@ -141,6 +141,25 @@ pub fn write_all(dir: &Path, motions: &[Motion]) -> Result<Vec<RoundTrip>, Rende
         .collect()
 }
 
+/// Read a BVH file back with `mocap_ingest` (every frame, no resampling) as
+/// a motion named `id`.
+pub fn read_motion(path: &Path, id: &str) -> Result<Motion, RenderError> {
+    let bytes = std::fs::read(path).map_err(|source| RenderError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let m = mocap_ingest::read_bvh(&path.display().to_string(), &bytes).map_err(|e| {
+        RenderError::Format {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        }
+    })?;
+    Ok(Motion {
+        id: id.to_string(),
+        poses: (0..m.num_frames()).map(|f| m.pose(f)).collect(),
+    })
+}
+
 /// How well a BVH file reproduces its motion, read back with
 /// `mocap_ingest`'s reader. Distances in CMU units.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
