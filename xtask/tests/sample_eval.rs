@@ -220,10 +220,18 @@ fn sample_and_eval_write_what_they_promise() {
     // Same run, same seed: the same motions.
     let s2 = tmp.path().join("s2");
     sample(&s2);
-    assert_eq!(
-        std::fs::read(s.join("samples.json")).unwrap(),
-        std::fs::read(s2.join("samples.json")).unwrap()
-    );
+    for f in [
+        "samples.json",
+        "bvh/sample_001.bvh",
+        "bvh/recon_001.bvh",
+        "viewer.html",
+    ] {
+        assert_eq!(
+            std::fs::read(s.join(f)).unwrap(),
+            std::fs::read(s2.join(f)).unwrap(),
+            "{f}"
+        );
+    }
 
     // Evaluation against the val windows.
     let e = tmp.path().join("e");
