@@ -1,12 +1,11 @@
 //! `cargo xtask audit`.
 
-use crate::plot::histogram;
-use crate::write_atomically;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use dataset_audit::{audit, Rebuild, Report, Thresholds};
+use motion_render::chart::histogram;
+use motion_render::write_file;
 use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -40,16 +39,12 @@ pub fn run(a: AuditArgs) -> Result<()> {
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let seconds = started.elapsed().as_secs_f64();
     let md = markdown(&report, seconds);
-    std::fs::write(out.join("audit.md"), &md).context("writing audit.md")?;
+    write_file(&out.join("audit.md"), md.as_bytes())?;
     let json = serde_json::to_string_pretty(
         &serde_json::json!({ "ok": report.ok(), "seconds": seconds, "report": report }),
     )?;
-    std::fs::write(out.join("audit.json"), json + "\n").context("writing audit.json")?;
-    let flagged = flagged_list(&report);
-    write_atomically(&out.join("flagged.txt"), |mut f| {
-        f.write_all(flagged.as_bytes())?;
-        Ok(())
-    })?;
+    write_file(&out.join("audit.json"), (json + "\n").as_bytes())?;
+    write_file(&out.join("flagged.txt"), flagged_list(&report).as_bytes())?;
     if !report.takes.is_empty() {
         let durations: Vec<f64> = report.takes.iter().map(|t| t.seconds).collect();
         let cv: Vec<f64> = report.takes.iter().map(|t| 100.0 * t.bone_cv).collect();

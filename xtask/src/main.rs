@@ -7,7 +7,6 @@ mod audit;
 mod dataset;
 mod fetch;
 mod motion;
-mod plot;
 mod train;
 
 use anyhow::{bail, Context, Result};
@@ -35,8 +34,14 @@ enum Command {
     /// Train the paper's VRNN on a dataset (checkpoints, metrics, loss curve).
     Train(train::TrainArgs),
     /// Sample motions from a trained run's prior (and reconstruct test
-    /// windows): Parquet + JSON, contact sheet, animations, HTML viewer.
+    /// windows): Parquet + JSON, BVH, contact sheet, animations, 3-D viewer.
     Sample(motion::SampleArgs),
+    /// Turn motions Parquet files (from `sample`) into BVH files, one per
+    /// motion, and check each by reading it back.
+    Export(motion::ExportArgs),
+    /// Open a run's 3-D viewer in headless Chromium: fail on a JavaScript
+    /// error, screenshot the generated set and the real/reconstruction pairs.
+    Screenshot(motion::ScreenshotArgs),
     /// Measure a trained run against real windows: ELBO, diversity,
     /// smoothness, bone lengths, foot skating, Fréchet distance.
     Eval(motion::EvalArgs),
@@ -95,6 +100,8 @@ fn main() -> Result<()> {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
         Command::Sample(args) => motion::sample(args),
+        Command::Export(args) => motion::export(args),
+        Command::Screenshot(args) => motion::screenshot(args),
         Command::Eval(args) => motion::eval(args),
         Command::Audit(args) => audit::run(args),
         Command::BenchTrain {
@@ -114,21 +121,6 @@ fn main() -> Result<()> {
             asf,
         } => inspect(&file, full_asf_skeleton, asf),
     }
-}
-
-/// Write `path` atomically: `write` fills `NAME.tmp` beside it, which is then
-/// renamed over `path`, so a crash never leaves a half-written file.
-pub(crate) fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(std::fs::File) -> Result<()>,
-) -> Result<()> {
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(".tmp");
-    let tmp = path.with_file_name(name);
-    let file =
-        std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    write(file).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
 }
 
 /// The workspace root (xtask lives one level below it).

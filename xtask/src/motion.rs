@@ -1,18 +1,22 @@
-//! `cargo xtask sample` and `cargo xtask eval`: motions from a trained run,
-//! back in global coordinates, written as Parquet + JSON, drawn (contact
-//! sheet, animated PNGs, an HTML viewer) and measured (`docs/metrics.md`).
+//! `cargo xtask sample`, `export` and `eval`: motions from a trained run,
+//! back in global coordinates, handed to `motion-render` (Parquet, JSON, BVH,
+//! contact sheet, animated PNGs, the 3-D viewer) and measured
+//! (`docs/metrics.md`).
 
-use crate::plot::{save_apng, save_png, Canvas};
 use anyhow::{bail, Context, Result};
 use candle_core::Device;
 use clap::Args;
 use mocap_ingest::features::{to_global, FeatureVec, NUM_FEATURES};
-use mocap_ingest::skeleton::{Pose, JOINT_NAMES, JOINT_PARENTS, NUM_JOINTS};
+use mocap_ingest::skeleton::Pose;
 use motion_metrics::{motion_stats, window_summary, MotionStats, Options};
+use motion_render::bvh::RoundTrip;
+use motion_render::figure::{animation, contact_sheet};
+use motion_render::io::write_motions;
+use motion_render::viewer::{write_viewer, MotionSet};
+use motion_render::Motion;
 use motion_vrnn::data::{Dataset, Stats, Windows};
 use motion_vrnn::train::{evaluate, layout, load_model, noise, CheckpointMeta, Trained};
 use serde::Serialize;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Where a run's model and data come from.
@@ -64,12 +68,35 @@ pub struct EvalArgs {
     out: Option<PathBuf>,
 }
 
-/// One motion in global coordinates (CMU units, floor at y = 0, 30 fps).
-pub struct Motion {
-    /// Identifier (`sample_007`, `test_003`, `recon_003`).
-    pub id: String,
-    /// Joint positions per frame.
-    pub poses: Vec<Pose>,
+/// `cargo xtask screenshot` options.
+#[derive(Args, Debug)]
+pub struct ScreenshotArgs {
+    /// A run directory: its RUN/samples/viewer.html.
+    #[arg(long, default_value = "runs/vrnn")]
+    run: PathBuf,
+    /// A viewer.html (instead of --run).
+    #[arg(long)]
+    html: Option<PathBuf>,
+    /// Output directory (default: beside the viewer).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Frame to show.
+    #[arg(long, default_value_t = 60)]
+    frame: usize,
+}
+
+/// `cargo xtask export` options.
+#[derive(Args, Debug)]
+pub struct ExportArgs {
+    /// Motions Parquet files (`motion, frame, joint, x, y, z`) to export.
+    #[arg(long = "parquet")]
+    parquet: Vec<PathBuf>,
+    /// A run directory: export its RUN/samples/{samples,reconstructions}.parquet.
+    #[arg(long)]
+    run: Option<PathBuf>,
+    /// Output directory for ID.bvh (default: `bvh/` beside each Parquet file).
+    #[arg(long)]
+    out: Option<PathBuf>,
 }
 
 struct Loaded {
@@ -215,7 +242,24 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     for mo in &motions {
         animation(&anim.join(format!("{}.png", mo.id)), &[mo])?;
     }
-    let mut sets = vec![("samples", &motions[..])];
+    let bvh = out.join("bvh");
+    std::fs::create_dir_all(&bvh)?;
+    let mut trips = vec![("generated", motion_render::bvh::write_all(&bvh, &motions)?)];
+    // The first generated motions beside their BVH files read back: what a
+    // rigid skeleton makes of the model's stretching bones.
+    let mut read_back = Vec::new();
+    for m in motions.iter().take(4) {
+        read_back.push(m.clone());
+        read_back.push(motion_render::bvh::read_motion(
+            &bvh.join(format!("{}.bvh", m.id)),
+            &format!("{}_bvh", m.id),
+        )?);
+    }
+    let mut sets = vec![MotionSet {
+        name: "samples",
+        group: 1,
+        motions: &motions,
+    }];
     let mut pairs = Vec::new();
     if a.reconstruct > 0 {
         let w = split(&m, &a.run.split)?;
@@ -236,8 +280,21 @@ pub fn sample(a: SampleArgs) -> Result<()> {
                 &[&pair[0], &pair[1]],
             )?;
         }
-        sets.push(("real vs reconstruction", &pairs[..]));
+        let t = motion_render::bvh::write_all(&bvh, &pairs)?;
+        let (r, c): (Vec<_>, Vec<_>) = t.iter().enumerate().partition(|(k, _)| k % 2 == 0);
+        trips.push(("real", r.into_iter().map(|(_, t)| *t).collect()));
+        trips.push(("reconstructed", c.into_iter().map(|(_, t)| *t).collect()));
+        sets.push(MotionSet {
+            name: "real vs reconstruction",
+            group: 2,
+            motions: &pairs,
+        });
     }
+    sets.push(MotionSet {
+        name: "generated vs its BVH read back",
+        group: 2,
+        motions: &read_back,
+    });
     write_viewer(&out.join("viewer.html"), &sets)?;
     println!("wrote {}:", out.display());
     println!(
@@ -250,11 +307,156 @@ pub fn sample(a: SampleArgs) -> Result<()> {
             a.run.split
         );
     }
+    println!("  bvh/ID.bvh                      every motion as BVH (CMU Motionbuilder skeleton, 30 fps)");
     println!("  contact_sheet.png               stick figures at frames 0, 30, 60, 90, 120");
     println!(
         "  anim/*.png                      animated PNG per motion (and real vs reconstruction)"
     );
-    println!("  viewer.html                     open in a browser: play/pause, frame slider");
+    println!("  viewer.html                     open in a browser: 3-D, orbit/pan/zoom, play/pause, speed, frame slider");
+    print_round_trips(&trips);
+    Ok(())
+}
+
+/// The BVH round-trip table: per set, the worst and mean joint distance of
+/// the file read back, and the part bone-length variation explains.
+fn print_round_trips(sets: &[(&str, Vec<RoundTrip>)]) {
+    println!(
+        "BVH read back with mocap-ingest (joint distance to the motion, CMU units; x0.0564 = m):"
+    );
+    println!(
+        "  {:<14} {:>7} {:>10} {:>10} {:>16} {:>16}",
+        "set", "motions", "max", "mean", "bone-length max", "unexplained max"
+    );
+    for (name, t) in sets {
+        let max = |f: fn(&RoundTrip) -> f64| t.iter().map(f).fold(0.0, f64::max);
+        let mean = t.iter().map(|r| r.mean).sum::<f64>() / t.len().max(1) as f64;
+        println!(
+            "  {name:<14} {:>7} {:>10} {:>10} {:>16} {:>16}",
+            t.len(),
+            dist(max(|r| r.max)),
+            dist(mean),
+            dist(max(|r| r.bone_max)),
+            dist(max(|r| r.residual_max))
+        );
+    }
+}
+
+/// `cargo xtask screenshot`: open the 3-D viewer in headless Chromium, fail
+/// on a JavaScript error, and screenshot the generated set and the
+/// real-vs-reconstruction pairs (overlaid).
+pub fn screenshot(a: ScreenshotArgs) -> Result<()> {
+    let html = a
+        .html
+        .clone()
+        .unwrap_or_else(|| a.run.join("samples").join("viewer.html"));
+    if !html.is_file() {
+        bail!(
+            "{}: no viewer; run `cargo xtask sample --run {}` first (or pass --html)",
+            html.display(),
+            a.run.display()
+        );
+    }
+    let chromium = motion_render::viewer::find_chromium().context(
+        "headless Chromium not found: install it (Debian: apt-get install chromium) or set CHROMIUM",
+    )?;
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| html.parent().unwrap_or(Path::new(".")).to_path_buf());
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let html_text =
+        std::fs::read_to_string(&html).with_context(|| format!("reading {}", html.display()))?;
+    // The sets in the file, in order; the overlaid ones `sample` writes get
+    // a screenshot each when present.
+    let names: Vec<&str> = html_text
+        .split("\"name\":\"")
+        .skip(1)
+        .filter_map(|t| t.split('"').next())
+        .collect();
+    let mut shots = vec![("viewer_samples.png", format!("?set=0&frame={}", a.frame))];
+    for (name, file) in [
+        ("real vs reconstruction", "viewer_pairs.png"),
+        ("generated vs its BVH read back", "viewer_bvh.png"),
+    ] {
+        if let Some(k) = names.iter().position(|n| *n == name) {
+            shots.push((file, format!("?set={k}&overlay=1&frame={}", a.frame)));
+        }
+    }
+    for (file, query) in shots {
+        let png = out.join(file);
+        motion_render::viewer::screenshot(&chromium, &html, &query, &png, (1200, 800))?;
+        println!("{} -> {} (no JavaScript error)", query, png.display());
+    }
+    Ok(())
+}
+
+/// A distance for the round-trip table: fixed above 0.01, else scientific.
+fn dist(v: f64) -> String {
+    if v >= 0.01 {
+        format!("{v:.3}")
+    } else {
+        format!("{v:.1e}")
+    }
+}
+
+/// `cargo xtask export`: motions Parquet files → one BVH per motion.
+pub fn export(a: ExportArgs) -> Result<()> {
+    let mut files = a.parquet.clone();
+    if let Some(run) = &a.run {
+        let dir = run.join("samples");
+        files.extend(
+            ["samples.parquet", "reconstructions.parquet"]
+                .map(|f| dir.join(f))
+                .into_iter()
+                .filter(|p| p.is_file()),
+        );
+        if files.is_empty() {
+            bail!(
+                "{}: no samples.parquet or reconstructions.parquet; run `cargo xtask sample --run {}` first",
+                dir.display(),
+                run.display()
+            );
+        }
+    }
+    if files.is_empty() {
+        bail!("nothing to export: pass --parquet FILE (repeatable) or --run RUN");
+    }
+    let mut failed = 0;
+    let mut sets = Vec::new();
+    for f in &files {
+        let out = a
+            .out
+            .clone()
+            .unwrap_or_else(|| f.parent().unwrap_or(Path::new(".")).join("bvh"));
+        let done = motion_render::io::read_parquet(f)
+            .map_err(anyhow::Error::from)
+            .and_then(|motions| {
+                std::fs::create_dir_all(&out)
+                    .with_context(|| format!("creating {}", out.display()))?;
+                Ok(motion_render::bvh::write_all(&out, &motions)?)
+            });
+        match done {
+            Ok(t) => {
+                println!(
+                    "{} -> {}/ ({} motions)",
+                    f.display(),
+                    out.display(),
+                    t.len()
+                );
+                sets.push((crate::file_name(f), t));
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                failed += 1;
+            }
+        }
+    }
+    let named: Vec<(&str, Vec<RoundTrip>)> =
+        sets.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
+    print_round_trips(&named);
+    if failed > 0 {
+        bail!("{failed} of {} files could not be exported", files.len());
+    }
     Ok(())
 }
 
@@ -345,9 +547,9 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         options: o,
     };
     let json = serde_json::to_string_pretty(&report)? + "\n";
-    write_atomic(&out.join("eval.json"), json.as_bytes())?;
+    motion_render::write_file(&out.join("eval.json"), json.as_bytes())?;
     let md = markdown(&report);
-    write_atomic(&out.join("eval.md"), md.as_bytes())?;
+    motion_render::write_file(&out.join("eval.md"), md.as_bytes())?;
     print!("{md}");
     println!(
         "\nwrote {} and {} in {:.1} s",
@@ -395,321 +597,4 @@ fn markdown(r: &EvalReport) -> String {
         r.split, r.frechet_generated, r.frechet_reconstructed, r.frechet_train
     );
     s
-}
-
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    crate::write_atomically(path, |mut f| Ok(f.write_all(bytes)?))
-}
-
-/// `NAME.parquet` (motion, frame, joint, x, y, z) and `NAME.json` (the
-/// viewer's format, `docs/metrics.md`).
-fn write_motions(dir: &Path, name: &str, motions: &[Motion]) -> Result<()> {
-    use polars::prelude::{Column, DataFrame, NamedFrom, ParquetWriter, Series};
-    let rows = motions.iter().map(|m| m.poses.len() * NUM_JOINTS).sum();
-    let (mut id, mut frame, mut joint) = (
-        Vec::with_capacity(rows),
-        Vec::with_capacity(rows),
-        Vec::with_capacity(rows),
-    );
-    let (mut x, mut y, mut z) = (
-        Vec::with_capacity(rows),
-        Vec::with_capacity(rows),
-        Vec::with_capacity(rows),
-    );
-    for m in motions {
-        for (f, pose) in m.poses.iter().enumerate() {
-            for (j, p) in pose.iter().enumerate() {
-                id.push(m.id.clone());
-                frame.push(f as u32);
-                joint.push(JOINT_NAMES[j]);
-                x.push(p[0] as f32);
-                y.push(p[1] as f32);
-                z.push(p[2] as f32);
-            }
-        }
-    }
-    let mut df = DataFrame::new_infer_height(vec![
-        Column::from(Series::new("motion".into(), id)),
-        Column::from(Series::new("frame".into(), frame)),
-        Column::from(Series::new("joint".into(), joint)),
-        Column::from(Series::new("x".into(), x)),
-        Column::from(Series::new("y".into(), y)),
-        Column::from(Series::new("z".into(), z)),
-    ])?;
-    crate::write_atomically(&dir.join(format!("{name}.parquet")), |f| {
-        ParquetWriter::new(f).finish(&mut df)?;
-        Ok(())
-    })?;
-    write_atomic(
-        &dir.join(format!("{name}.json")),
-        motions_json(motions).as_bytes(),
-    )
-}
-
-/// `{"fps", "units", "joints", "parents", "motions": [{"id", "frames":
-/// [[x, y, z] × joints] × frames}]}`, positions rounded to 0.001 unit.
-fn motions_json(motions: &[Motion]) -> String {
-    let mut s = String::from(
-        "{\"fps\":30,\"units\":\"CMU units (x0.0564 = metres), y up, floor at y = 0\",\"joints\":",
-    );
-    s += &serde_json::to_string(&JOINT_NAMES).unwrap_or_default();
-    let parents: Vec<i64> = JOINT_PARENTS
-        .iter()
-        .map(|p| p.map_or(-1, |v| v as i64))
-        .collect();
-    s += ",\"parents\":";
-    s += &serde_json::to_string(&parents).unwrap_or_default();
-    s += ",\"motions\":[";
-    for (k, m) in motions.iter().enumerate() {
-        if k > 0 {
-            s += ",";
-        }
-        s += &format!("{{\"id\":\"{}\",\"frames\":[", m.id);
-        for (f, pose) in m.poses.iter().enumerate() {
-            if f > 0 {
-                s += ",";
-            }
-            s += "[";
-            for (j, p) in pose.iter().enumerate() {
-                if j > 0 {
-                    s += ",";
-                }
-                s += &format!("[{:.3},{:.3},{:.3}]", p[0], p[1], p[2]);
-            }
-            s += "]";
-        }
-        s += "]}";
-    }
-    s += "]}";
-    s
-}
-
-/// Side colours: left limbs blue, right limbs red, spine dark grey.
-fn bone_color(j: usize) -> [u8; 3] {
-    match j {
-        1..=4 | 13..=15 => [40, 90, 200],
-        5..=8 | 16..=18 => [200, 50, 40],
-        _ => [60, 60, 60],
-    }
-}
-
-/// Horizontal screen coordinate of a point seen at three quarters
-/// (50° from the front of a character facing +z), relative to `centre`.
-fn project(p: [f64; 3], centre: [f64; 3]) -> f64 {
-    let (s, c) = 50f64.to_radians().sin_cos();
-    (p[0] - centre[0]) * c + (p[2] - centre[2]) * s
-}
-
-/// Draw one pose into the box `(x0, y0, w, h)`: feet at the bottom margin,
-/// `scale` pixels per unit, horizontally centred on the hips.
-fn draw_pose(cv: &mut Canvas, pose: &Pose, (x0, y0, w, h): (f64, f64, f64, f64), scale: f64) {
-    let floor_y = y0 + h - 8.0;
-    let cx = x0 + w / 2.0;
-    let centre = pose[0];
-    cv.line(
-        (x0 + 4.0, floor_y),
-        (x0 + w - 4.0, floor_y),
-        [170, 170, 170],
-        1,
-    );
-    // Floor ticks every 10 units in world x + z, so travel shows.
-    for k in -20i64..=20 {
-        let d = k as f64 * 10.0 - (centre[0] + centre[2]).rem_euclid(10.0);
-        let sx = cx + d * scale * 0.7;
-        if sx > x0 + 4.0 && sx < x0 + w - 4.0 {
-            cv.line((sx, floor_y), (sx, floor_y + 3.0), [170, 170, 170], 1);
-        }
-    }
-    let pt = |p: [f64; 3]| (cx + project(p, centre) * scale, floor_y - p[1] * scale);
-    for (j, parent) in JOINT_PARENTS.iter().enumerate() {
-        if let Some(pj) = *parent {
-            cv.line(pt(pose[pj]), pt(pose[j]), bone_color(j), 2);
-        }
-    }
-    let head = pt(pose[12]);
-    for a in 0..24 {
-        let t = a as f64 / 24.0 * std::f64::consts::TAU;
-        cv.set(
-            (head.0 + 3.0 * t.cos()).round() as i64,
-            (head.1 + 3.0 * t.sin()).round() as i64,
-            [60, 60, 60],
-        );
-    }
-}
-
-/// Pixels per unit so a 40-unit (about 2.3 m) column fits a box `h` high.
-fn scale_for(h: f64) -> f64 {
-    (h - 14.0) / 40.0
-}
-
-/// The paper's figure 6: a grid of motions, each a row of stick figures at
-/// the given frames, one scale for all, floor line in each panel.
-fn contact_sheet(path: &Path, motions: &[Motion], times: &[usize]) -> Result<()> {
-    let (pw, ph) = (64.0, 110.0);
-    let cols = 4usize;
-    let rows = motions.len().div_ceil(cols);
-    let block_w = pw * times.len() as f64 + 16.0;
-    let block_h = ph + 14.0;
-    let (w, h) = (
-        (block_w * cols as f64) as usize + 8,
-        (block_h * rows as f64) as usize + 30,
-    );
-    let mut cv = Canvas::new(w, h);
-    cv.text(
-        8,
-        8,
-        &format!(
-            "{} motions, frames {} at 30 fps",
-            motions.len(),
-            times
-                .iter()
-                .map(usize::to_string)
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-        [0, 0, 0],
-    );
-    for (k, m) in motions.iter().enumerate() {
-        let bx = 8.0 + (k % cols) as f64 * block_w;
-        let by = 26.0 + (k / cols) as f64 * block_h;
-        cv.text(bx as i64, by as i64, &m.id.replace('_', " "), [80, 80, 80]);
-        for (i, &t) in times.iter().enumerate() {
-            let Some(pose) = m.poses.get(t) else { continue };
-            draw_pose(
-                &mut cv,
-                pose,
-                (bx + i as f64 * pw, by + 10.0, pw, ph),
-                scale_for(ph),
-            );
-        }
-    }
-    save_png(&cv, path)
-}
-
-/// An animated PNG of motions side by side, 30 fps, labelled.
-fn animation(path: &Path, motions: &[&Motion]) -> Result<()> {
-    let (pw, ph) = (150.0, 190.0);
-    let frames = motions.iter().map(|m| m.poses.len()).max().unwrap_or(0);
-    let mut out = Vec::with_capacity(frames);
-    for f in 0..frames {
-        let mut cv = Canvas::new((pw * motions.len() as f64) as usize, ph as usize + 14);
-        for (k, m) in motions.iter().enumerate() {
-            let x0 = k as f64 * pw;
-            cv.text(x0 as i64 + 4, 4, &m.id.replace('_', " "), [80, 80, 80]);
-            if let Some(pose) = m.poses.get(f).or(m.poses.last()) {
-                draw_pose(&mut cv, pose, (x0, 14.0, pw, ph), scale_for(ph));
-            }
-        }
-        cv.text(4, ph as i64 + 2, &format!("{f}"), [150, 150, 150]);
-        out.push(cv);
-    }
-    save_apng(&out, 30, path)
-}
-
-/// One self-contained HTML file (no network) that plays the motion sets.
-fn write_viewer(path: &Path, sets: &[(&str, &[Motion])]) -> Result<()> {
-    let mut data = String::from("[");
-    for (k, (name, motions)) in sets.iter().enumerate() {
-        if k > 0 {
-            data += ",";
-        }
-        data += &format!(
-            "{{\"name\":{},\"data\":{}}}",
-            serde_json::to_string(name)?,
-            motions_json(motions)
-        );
-    }
-    data += "]";
-    let html = VIEWER.replace("__DATA__", &data.replace("</", "<\\/"));
-    write_atomic(path, html.as_bytes())
-}
-
-const VIEWER: &str = r#"<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>motion viewer</title>
-<style>
-body { font: 14px sans-serif; margin: 12px; color: #222; }
-#bar { display: flex; gap: 12px; align-items: center; margin-bottom: 8px; }
-#slider { width: 420px; }
-canvas { border: 1px solid #ddd; }
-</style></head><body>
-<div id="bar">
-  <select id="set"></select>
-  <button id="play">pause</button>
-  <input id="slider" type="range" min="0" value="0">
-  <span id="label"></span>
-</div>
-<canvas id="view"></canvas>
-<p>Stick figures seen at three quarters, each centred on its hips; floor ticks every 10 units show travel.
-Left limbs blue, right limbs red. Written by <code>cargo xtask sample</code>.</p>
-<script id="motion-data" type="application/json">__DATA__</script>
-<script>
-const sets = JSON.parse(document.getElementById('motion-data').textContent);
-const sel = document.getElementById('set'), play = document.getElementById('play');
-const slider = document.getElementById('slider'), label = document.getElementById('label');
-const cv = document.getElementById('view'), ctx = cv.getContext('2d');
-sets.forEach((s, i) => { const o = document.createElement('option'); o.value = i; o.textContent = s.name + ' (' + s.data.motions.length + ')'; sel.appendChild(o); });
-let frame = 0, playing = true, last = 0;
-const PW = 150, PH = 190, COLS = 6;
-const side = j => (j >= 1 && j <= 4) || (j >= 13 && j <= 15) ? '#285ac8' : (j >= 5 && j <= 8) || (j >= 16 && j <= 18) ? '#c83228' : '#3c3c3c';
-const s50 = Math.sin(50 * Math.PI / 180), c50 = Math.cos(50 * Math.PI / 180);
-function current() { return sets[sel.value].data; }
-function frames() { return Math.max(...current().motions.map(m => m.frames.length)); }
-function layout() {
-  const n = current().motions.length, cols = Math.min(COLS, n);
-  cv.width = cols * PW; cv.height = Math.ceil(n / cols) * (PH + 16);
-  slider.max = frames() - 1;
-}
-function draw() {
-  const d = current(), cols = Math.min(COLS, d.motions.length), sc = (PH - 14) / 40;
-  ctx.fillStyle = '#fff'; ctx.fillRect(0, 0, cv.width, cv.height);
-  d.motions.forEach((m, k) => {
-    const x0 = (k % cols) * PW, y0 = Math.floor(k / cols) * (PH + 16);
-    const pose = m.frames[Math.min(frame, m.frames.length - 1)], c = pose[0];
-    const fy = y0 + 16 + PH - 8, cx = x0 + PW / 2;
-    ctx.fillStyle = '#666'; ctx.fillText(m.id, x0 + 4, y0 + 12);
-    ctx.strokeStyle = '#aaa'; ctx.lineWidth = 1; ctx.beginPath(); ctx.moveTo(x0 + 4, fy); ctx.lineTo(x0 + PW - 4, fy);
-    const off = ((c[0] + c[2]) % 10 + 10) % 10;
-    for (let t = -20; t <= 20; t++) { const sx = cx + (t * 10 - off) * sc * 0.7; if (sx > x0 + 4 && sx < x0 + PW - 4) { ctx.moveTo(sx, fy); ctx.lineTo(sx, fy + 3); } }
-    ctx.stroke();
-    const P = p => [cx + ((p[0] - c[0]) * c50 + (p[2] - c[2]) * s50) * sc, fy - p[1] * sc];
-    ctx.lineWidth = 2;
-    d.parents.forEach((pj, j) => { if (pj < 0) return; const a = P(pose[pj]), b = P(pose[j]);
-      ctx.strokeStyle = side(j); ctx.beginPath(); ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.stroke(); });
-    const h = P(pose[12]); ctx.strokeStyle = '#3c3c3c'; ctx.beginPath(); ctx.arc(h[0], h[1], 3, 0, 2 * Math.PI); ctx.stroke();
-  });
-  slider.value = frame; label.textContent = 'frame ' + frame + ' / ' + (frames() - 1) + ' (' + (frame / d.fps).toFixed(2) + ' s)';
-}
-function tick(ts) {
-  if (playing && ts - last >= 1000 / current().fps) { frame = (frame + 1) % frames(); last = ts; draw(); }
-  requestAnimationFrame(tick);
-}
-sel.onchange = () => { frame = 0; layout(); draw(); };
-play.onclick = () => { playing = !playing; play.textContent = playing ? 'pause' : 'play'; };
-slider.oninput = () => { frame = +slider.value; playing = false; play.textContent = 'play'; draw(); };
-const q = new URLSearchParams(location.search);
-if (q.has('frame')) { frame = +q.get('frame'); playing = false; play.textContent = 'play'; }
-layout(); draw(); requestAnimationFrame(tick);
-</script></body></html>
-"#;
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn motions_json_layout() {
-        let m = Motion {
-            id: "sample_000".into(),
-            poses: vec![[[1.0, 2.0, 3.0]; NUM_JOINTS]; 2],
-        };
-        let v: serde_json::Value = serde_json::from_str(&motions_json(&[m])).unwrap();
-        assert_eq!(v["fps"], 30);
-        assert_eq!(v["joints"].as_array().unwrap().len(), NUM_JOINTS);
-        assert_eq!(v["parents"][0], -1);
-        assert_eq!(v["motions"][0]["frames"].as_array().unwrap().len(), 2);
-        assert_eq!(
-            v["motions"][0]["frames"][1][18],
-            serde_json::json!([1.0, 2.0, 3.0])
-        );
-    }
 }

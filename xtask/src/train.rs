@@ -1,9 +1,9 @@
 //! `cargo xtask train`.
 
-use crate::plot::{line_plot, Series};
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use motion_render::chart::{line_chart, Series};
 use motion_vrnn::train::{layout, train, EpochMetrics, TrainConfig, TrainProgress};
 use std::path::{Path, PathBuf};
 
@@ -178,29 +178,29 @@ pub fn run(a: TrainArgs) -> Result<()> {
 pub fn plot_history(path: &Path, history: &[EpochMetrics]) -> Result<()> {
     let pts =
         |f: fn(&EpochMetrics) -> f64| history.iter().map(|m| (m.epoch as f64, f(m))).collect();
-    line_plot(
+    Ok(line_chart(
         path,
-        "VRNN loss per window (recon + KL)",
+        "VRNN loss per window",
         "epoch",
-        "loss",
+        "loss per window (normalised units)",
         &[
             Series {
-                name: "train",
+                name: "train (recon + KL)",
                 color: [31, 119, 180],
                 points: pts(|m| m.train_recon + m.train_kl),
             },
             Series {
-                name: "val",
+                name: "val (recon + KL)",
                 color: [255, 127, 14],
                 points: pts(|m| m.val_recon + m.val_kl),
             },
             Series {
-                name: "val kl",
+                name: "val KL",
                 color: [44, 160, 44],
                 points: pts(|m| m.val_kl),
             },
         ],
-    )
+    )?)
 }
 
 /// `cargo xtask bench-train`: seconds per training step (forward, backward,

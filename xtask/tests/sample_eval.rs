@@ -26,6 +26,53 @@ fn apng_frames(path: &Path) -> (u32, u32, u32) {
     (info.width, info.height, frames)
 }
 
+/// The 3-D viewer in headless Chromium: screenshots of both sets, and a
+/// page with a JavaScript error fails. Chromium is mandatory under CI
+/// (`.ci/run` sets MOCAP_REQUIRE_CHROMIUM=1); elsewhere the check is skipped
+/// with a message when it is missing.
+fn viewer_in_chromium(samples: &Path, tmp: &Path) {
+    if motion_render::viewer::find_chromium().is_none() {
+        assert!(
+            std::env::var_os("MOCAP_REQUIRE_CHROMIUM").is_none(),
+            "MOCAP_REQUIRE_CHROMIUM is set but no chromium is on PATH (apt-get install chromium)"
+        );
+        eprintln!(
+            "SKIPPED the viewer check: no chromium on PATH (Debian: apt-get install chromium)"
+        );
+        return;
+    }
+    let shots = tmp.join("shots");
+    let o = xtask()
+        .args(["screenshot", "--frame", "20", "--html"])
+        .arg(samples.join("viewer.html"))
+        .arg("--out")
+        .arg(&shots)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["viewer_samples.png", "viewer_pairs.png", "viewer_bvh.png"] {
+        let (w, h, _) = apng_frames(&shots.join(f));
+        assert_eq!((w, h), (1200, 800), "{f}");
+    }
+    // A page that throws is a failure.
+    let broken = tmp.join("broken");
+    std::fs::create_dir_all(&broken).unwrap();
+    let html = std::fs::read_to_string(samples.join("viewer.html")).unwrap();
+    std::fs::write(
+        broken.join("viewer.html"),
+        html.replace("status('ok');", "noSuchFunction(); status('ok');"),
+    )
+    .unwrap();
+    let o = xtask()
+        .args(["screenshot", "--html"])
+        .arg(broken.join("viewer.html"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("noSuchFunction"), "{err}");
+}
+
 #[test]
 fn sample_and_eval_write_what_they_promise() {
     integration_tests::require_samples!();
@@ -104,20 +151,88 @@ fn sample_and_eval_write_what_they_promise() {
         (300, 204, 32)
     );
 
-    // The viewer is one file with its data and no network access.
+    // The viewer is one file with its data, three.js inline, no network access.
     let html = std::fs::read_to_string(s.join("viewer.html")).unwrap();
     assert!(html.contains("\"id\":\"sample_002\"") && html.contains("\"id\":\"recon_001\""));
-    for needle in ["http://", "https://", "src=", "<link"] {
-        assert!(!html.contains(needle), "viewer.html refers to {needle}");
+    assert!(html.contains("OrbitControls") && html.contains("Three.js Authors"));
+    // Generated motions beside their BVH files read back.
+    assert!(html.contains("\"id\":\"sample_002_bvh\""));
+    for needle in ["<script src", "<link", "<img", "<iframe"] {
+        assert!(!html.contains(needle), "viewer.html loads {needle}");
     }
+
+    viewer_in_chromium(&s, tmp.path());
+
+    // Every motion as BVH, named by its id, read back by the project's reader.
+    for id in ["sample_000", "sample_002", "val_000", "recon_001"] {
+        let bvh = std::fs::read(s.join("bvh").join(format!("{id}.bvh"))).unwrap();
+        let m = mocap_ingest::read_bvh(id, &bvh).unwrap();
+        assert_eq!(m.skeleton(), mocap_ingest::SkeletonKind::Exported);
+        assert_eq!(
+            m.num_frames(),
+            if id.starts_with("sample") { 40 } else { 32 }
+        );
+    }
+
+    // `export` turns a motions Parquet back into the same BVH files.
+    let ex = tmp.path().join("ex");
+    let o = xtask()
+        .args(["export", "--parquet"])
+        .arg(s.join("reconstructions.parquet"))
+        .arg("--out")
+        .arg(&ex)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert!(table.contains("reconstructions.parquet"), "{table}");
+    // Float32 positions in the Parquet: the same motions to 1e-4 units, so
+    // the same BVH up to the last decimals; compare the hierarchies.
+    let head = |p: &Path| {
+        let t = std::fs::read_to_string(p).unwrap();
+        t[..t.find("MOTION").unwrap()].lines().count()
+    };
+    assert_eq!(
+        head(&ex.join("val_001.bvh")),
+        head(&s.join("bvh/val_001.bvh"))
+    );
+    let bad = tmp.path().join("bad.parquet");
+    std::fs::write(&bad, b"not parquet").unwrap();
+    let o = xtask()
+        .args(["export", "--parquet"])
+        .arg(&bad)
+        .arg("--parquet")
+        .arg(s.join("samples.parquet"))
+        .arg("--out")
+        .arg(&ex)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("bad.parquet") && err.contains("1 of 2 files"),
+        "{err}"
+    );
+    assert!(
+        ex.join("sample_002.bvh").is_file(),
+        "the good file still went through"
+    );
 
     // Same run, same seed: the same motions.
     let s2 = tmp.path().join("s2");
     sample(&s2);
-    assert_eq!(
-        std::fs::read(s.join("samples.json")).unwrap(),
-        std::fs::read(s2.join("samples.json")).unwrap()
-    );
+    for f in [
+        "samples.json",
+        "bvh/sample_001.bvh",
+        "bvh/recon_001.bvh",
+        "viewer.html",
+    ] {
+        assert_eq!(
+            std::fs::read(s.join(f)).unwrap(),
+            std::fs::read(s2.join(f)).unwrap(),
+            "{f}"
+        );
+    }
 
     // Evaluation against the val windows.
     let e = tmp.path().join("e");

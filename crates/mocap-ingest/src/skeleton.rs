@@ -89,6 +89,10 @@ pub enum SkeletonKind {
     /// figure (`hip`, `abdomen`, `lThigh`, …) in the figure's own unit; read
     /// through [`DAZ_JOINTS`] and scaled to CMU units (see `docs/features.md`).
     Daz,
+    /// Motionbuilder names without any finger joints: this project's BVH
+    /// export (`motion-render`), which has no T-pose frame. cgspeed's
+    /// Motionbuilder files always carry finger joints.
+    Exported,
 }
 
 impl SkeletonKind {
@@ -100,6 +104,9 @@ impl SkeletonKind {
             SkeletonKind::Max3ds => "3dsMax-friendly BVH",
             SkeletonKind::AsfAmc => "ASF/AMC",
             SkeletonKind::Daz => "Daz-friendly BVH",
+            SkeletonKind::Exported => {
+                "BVH exported by this project (Motionbuilder names, no fingers)"
+            }
         }
     }
 
@@ -259,6 +266,13 @@ pub fn recognise_bvh(names: &[&str]) -> Result<SkeletonKind, (&'static str, Vec<
         if MB2008_MARKERS.iter().all(|n| has(n)) {
             return Ok(SkeletonKind::Motionbuilder2008);
         }
+        if MB2010_MARKERS
+            .iter()
+            .chain(&MB2008_MARKERS)
+            .all(|n| !has(n))
+        {
+            return Ok(SkeletonKind::Exported);
+        }
         let mut m = missing(&MB2010_MARKERS);
         m.push("(or LFingers, RFingers)".into());
         return Err((SkeletonKind::Motionbuilder2010.name(), m));
@@ -317,6 +331,16 @@ mod tests {
         mb08.extend(MB2008_MARKERS);
         assert_eq!(recognise_bvh(&mb08), Ok(SkeletonKind::Motionbuilder2008));
         assert_eq!(recognise_bvh(&MAX3DS_NAMES), Ok(SkeletonKind::Max3ds));
+        // No finger joints at all: the project's own export, no T-pose.
+        assert_eq!(
+            recognise_bvh(&MOTIONBUILDER_NAMES),
+            Ok(SkeletonKind::Exported)
+        );
+        assert!(!SkeletonKind::Exported.has_tpose_frame());
+        // One finger marker of a release but not the other: still an error.
+        let mut half: Vec<&str> = MOTIONBUILDER_NAMES.to_vec();
+        half.push("LeftHandIndex1");
+        assert!(recognise_bvh(&half).is_err());
         let partial: Vec<&str> = mb.iter().copied().filter(|n| *n != "LeftForeArm").collect();
         let (closest, missing) = recognise_bvh(&partial).unwrap_err();
         assert_eq!(closest, SkeletonKind::Motionbuilder2010.name());
