@@ -2,18 +2,23 @@
 //! Neural Network* (Murakami & Ikuzawa) in candle, trained on the Parquet
 //! windows written by `cargo xtask dataset`.
 //!
-//! - [`model`]: `Config`, `Vrnn::new(vb)`, `forward` (losses), `sample`.
-//! - [`fused`]: the training loss as one CPU kernel with a hand-written backward.
+//! - [`model`]: `Config` (the paper's sizes and the parts beyond it),
+//!   `Vrnn::new(vb)`, and the [`MotionModel`] trait (`losses`,
+//!   `reconstruct`, `sample`) that training, sampling and evaluation use.
+//! - [`blocks`]: the fused building blocks models are written with (dense
+//!   layers over all rows, the recurrence over whole sequences, the Gaussian
+//!   KL, forward kinematics, a temporal filter), each with a hand-written
+//!   CPU backward tested against autograd.
 //! - [`data`]: the dataset through polars, normalised by its `stats.json`.
 //! - [`optim`]: Adam with saveable state; gradient-norm clipping.
 //! - [`train`]: the training loop, checkpoints, resume, metrics.
 //! - [`rng`]: the seeded RNG behind every random number.
 
+pub mod blocks;
 pub mod data;
-pub mod fused;
 pub mod model;
 pub mod optim;
 pub mod rng;
 pub mod train;
 
-pub use model::{Config, Vrnn};
+pub use model::{Config, MotionModel, Vrnn};

@@ -1,4 +1,6 @@
-//! The VRNN of Murakami & Ikuzawa (section 4.2), after Chung et al. (2015).
+//! The VRNN of Murakami & Ikuzawa (section 4.2), after Chung et al. (2015),
+//! and the parts this project adds to it, written once from the fused
+//! blocks of [`crate::blocks`].
 //!
 //! Per time step, with `h` the LSTM state before the step:
 //! - features `x'' = relu(W2 relu(W1 x))` (58 → 48 → 32);
@@ -10,18 +12,31 @@
 //! Loss per step: `‖x̃ − x‖² + KL(N(μz,σz) ‖ N(μp,σp))`, summed over time and
 //! averaged over the batch. Standard deviations are clamped to at least
 //! [`SIGMA_MIN`] so the logs stay finite.
+//!
+//! [`Parts`] switches on what goes beyond the paper (all off is the paper's
+//! model, bit for bit the same losses and gradients as before):
+//! - `skeleton`: the decoder's 54 joint outputs are bone directions, placed
+//!   by forward kinematics with the window's bone lengths (training,
+//!   reconstruction) or the training set's mean skeleton (sampling), so
+//!   bones cannot stretch;
+//! - `latent_filter`: the decoder reads the latent through a causal
+//!   low-pass filter over time, so a per-step latent draw cannot make the
+//!   pose jump (the paper's "filter over time inside the model").
 
-use crate::fused;
+use crate::blocks::scan::ScanDims;
+use crate::blocks::skeleton::{bone_lengths, forward_kinematics, BONES};
+use crate::blocks::{
+    self, filter, gaussian_kl, latent_lstm, linear, lstm_cell, squared_error, Act,
+};
 use candle_core::{DType, Device, Result, Tensor, D};
-use candle_nn::rnn::{LSTMConfig, LSTMState, LSTM, RNN};
-use candle_nn::{linear, Linear, Module, VarBuilder};
+use candle_nn::VarBuilder;
 use serde::{Deserialize, Serialize};
 
 /// Lower bound on every standard deviation (guards `log σ` and `1/σ²`).
 pub const SIGMA_MIN: f64 = 1e-4;
 
-/// Every size of the model.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// Every size of the model, and the parts beyond the paper.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Config {
     /// Features per frame.
     pub input: usize,
@@ -33,6 +48,13 @@ pub struct Config {
     pub latent: usize,
     /// Decoder hidden sizes (ψ, then the next layer).
     pub decoder: [usize; 2],
+    /// What the model adds to the paper's (absent in the paper's checkpoints).
+    #[serde(default, skip_serializing_if = "Parts::is_paper")]
+    pub parts: Parts,
+    /// The data the skeleton and feet parts need, filled from the training set by
+    /// [`Config::fit_to`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body: Option<Body>,
 }
 
 impl Default for Config {
@@ -44,43 +66,173 @@ impl Default for Config {
             hidden: 32,
             latent: 8,
             decoder: [32, 48],
+            parts: Parts::default(),
+            body: None,
         }
     }
 }
 
-/// A Gaussian head: mean and sigmoid standard deviation.
-#[derive(Clone, Debug)]
-struct Gaussian {
-    mean: Linear,
-    std: Linear,
+/// The parts beyond the paper (see the module docs).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Parts {
+    /// Joints by forward kinematics from decoded bone directions.
+    #[serde(default)]
+    pub skeleton: bool,
+    /// Pole `ρ ∈ [0, 1)` of the causal filter on the decoder's latent (0: off).
+    #[serde(default)]
+    pub latent_filter: f64,
+    /// Pole `ρ ∈ [0, 1)` of the causal filter on the decoder's output, before
+    /// forward kinematics (0: off).
+    #[serde(default)]
+    pub output_filter: f64,
+    /// Foot-locked root motion: the decoder also predicts each foot's contact
+    /// (trained on the real toe being below 5 cm), and the root's planar
+    /// velocity is the one that keeps the feet in contact where they were
+    /// (blended with the decoded velocity by the contact probability).
+    #[serde(default)]
+    pub foot_lock: bool,
+    /// Weight of the foot-contact penalty: the squared horizontal slide of
+    /// each decoded toe over the frames where the real toe is on the floor
+    /// (CMU units², summed like the reconstruction error; 0: off).
+    #[serde(default)]
+    pub feet: f64,
 }
 
-impl Gaussian {
-    fn new(input: usize, latent: usize, vb: VarBuilder) -> Result<Self> {
-        Ok(Gaussian {
-            mean: linear(input, latent, vb.pp("mean"))?,
-            std: linear(input, latent, vb.pp("std"))?,
+impl Parts {
+    /// Nothing beyond the paper.
+    pub fn is_paper(&self) -> bool {
+        *self == Parts::default()
+    }
+}
+
+/// Feature statistics and the mean skeleton, for the skeleton and feet parts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Body {
+    /// Mean of each feature (`stats.json`).
+    pub mean: Vec<f32>,
+    /// Standard deviation of each feature (`stats.json`).
+    pub std: Vec<f32>,
+    /// Mean length of each bone over the training windows (CMU units).
+    pub bones: Vec<f32>,
+    /// Mean height of a toe in contact with the floor over the training
+    /// windows (CMU units; where the foot lock puts a planted toe).
+    #[serde(default)]
+    pub contact_height: f32,
+}
+
+/// The model `cargo xtask train` trains unless told otherwise.
+pub const DEFAULT_MODEL: &str = "motion";
+
+/// The models `cargo xtask train --model NAME` knows, with what each adds.
+pub const MODELS: [(&str, &str); 5] = [
+    ("paper", "the paper's VRNN"),
+    ("smooth", "the paper's VRNN, with causal low-pass filters on the decoder's latent and output"),
+    ("skeletal", "the paper's VRNN, decoding bone directions placed by forward kinematics"),
+    ("feet", "skeletal, with foot contacts predicted, the root moved by the planted feet, and a penalty on toes that slide in contact"),
+    ("motion", "smooth, skeletal and feet together"),
+];
+
+impl Config {
+    /// The model called `name` in [`MODELS`].
+    pub fn named(name: &str) -> Option<Config> {
+        let smooth = Parts {
+            latent_filter: 0.8,
+            output_filter: 0.8,
+            ..Parts::default()
+        };
+        let skeletal = Parts {
+            skeleton: true,
+            ..Parts::default()
+        };
+        let parts = match name {
+            "paper" => Parts::default(),
+            "smooth" => smooth,
+            "skeletal" => skeletal,
+            "feet" => Parts {
+                feet: 1.0,
+                foot_lock: true,
+                ..skeletal
+            },
+            "motion" => Parts {
+                skeleton: true,
+                feet: 1.0,
+                foot_lock: true,
+                ..smooth
+            },
+            _ => return None,
+        };
+        Some(Config {
+            parts,
+            ..Config::default()
         })
     }
 
-    fn forward(&self, x: &Tensor) -> Result<(Tensor, Tensor)> {
-        let mu = self.mean.forward(x)?;
-        let sigma = candle_nn::ops::sigmoid(&self.std.forward(x)?)?.clamp(SIGMA_MIN, 1.0)?;
-        Ok((mu, sigma))
+    /// The name in [`MODELS`] of this configuration, if it has one.
+    pub fn name(&self) -> Option<&'static str> {
+        MODELS
+            .iter()
+            .map(|m| m.0)
+            .find(|n| Config::named(n).is_some_and(|c| c.parts == self.parts))
+    }
+
+    /// Fill what the model needs from the training data: for the skeleton
+    /// and feet parts, the feature statistics and the mean bone lengths of `train`
+    /// (normalised windows, `n × T × input`).
+    pub fn fit_to(&mut self, mean: &[f64], std: &[f64], train: &[f32]) {
+        if !self.parts.skeleton && self.parts.feet <= 0.0 && !self.parts.foot_lock {
+            self.body = None;
+            return;
+        }
+        let (mean, std): (Vec<f32>, Vec<f32>) = (
+            mean.iter().map(|&v| v as f32).collect(),
+            std.iter().map(|&v| v as f32).collect(),
+        );
+        let f = self.input;
+        let rows = train.len() / f.max(1);
+        let raw: Vec<f32> = train
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v * std[i % f] + mean[i % f])
+            .collect();
+        let (y, joints) = split_raw(&raw, f);
+        let lengths = bone_lengths(&y, &joints);
+        let mut bones = [0.0f64; BONES];
+        for r in 0..rows {
+            for (b, l) in bones.iter_mut().zip(&lengths[r * BONES..(r + 1) * BONES]) {
+                *b += *l as f64;
+            }
+        }
+        // Toe heights in contact (local y = height above the floor).
+        let (mut sum, mut count) = (0.0f64, 0usize);
+        for r in raw.chunks_exact(f) {
+            for toe in TOES {
+                let y = r[1 + 3 * (toe - 1) + 1] as f64;
+                if y < CONTACT_UNITS {
+                    sum += y;
+                    count += 1;
+                }
+            }
+        }
+        self.body = Some(Body {
+            mean,
+            std,
+            bones: bones
+                .iter()
+                .map(|b| (b / rows.max(1) as f64) as f32)
+                .collect(),
+            contact_height: (sum / count.max(1) as f64) as f32,
+        });
     }
 }
 
-/// The model.
-#[derive(Clone, Debug)]
-pub struct Vrnn {
-    config: Config,
-    phi_x: [Linear; 2],
-    prior: Gaussian,
-    encoder: Gaussian,
-    decoder: [Linear; 3],
-    rnn: LSTM,
-    /// Every parameter in [`fused::param_layout`] order.
-    params: Vec<Tensor>,
+/// Root heights and the 54 joint coordinates of raw feature rows.
+fn split_raw(raw: &[f32], f: usize) -> (Vec<f32>, Vec<f32>) {
+    let y = raw.chunks_exact(f).map(|r| r[0]).collect();
+    let joints = raw
+        .chunks_exact(f)
+        .flat_map(|r| r[1..1 + 3 * BONES].iter().copied())
+        .collect();
+    (y, joints)
 }
 
 /// Losses of a batch: summed over time, averaged over the batch (scalars).
@@ -90,203 +242,612 @@ pub struct Losses {
     pub recon: Tensor,
     /// KL(posterior ‖ prior).
     pub kl: Tensor,
+    /// Penalties of the parts beyond the paper, already weighted (zero for
+    /// the paper's model); training minimises `recon + w·kl + extra`.
+    pub extra: Tensor,
+}
+
+/// What training, sampling, evaluation and checkpoints ask of a model.
+pub trait MotionModel: Send + Sync {
+    /// The model's configuration (saved in checkpoints).
+    fn config(&self) -> &Config;
+    /// Losses of `x: [B, T, input]` with reparameterisation noise
+    /// `eps: [T, B, latent]`.
+    fn losses(&self, x: &Tensor, eps: &Tensor) -> Result<Losses>;
+    /// Reconstructions `[B, T, input]` of real windows: posterior mean,
+    /// decoder mean, real frames fed to the recurrence.
+    fn reconstruct(&self, x: &Tensor) -> Result<Tensor>;
+    /// `T` frames per sequence from the prior with noise `eps: [T, B, latent]`,
+    /// each decoded frame fed back as the next input. `[B, T, input]`.
+    /// With `start: [B, K, input]`, the first `K` frames are those real
+    /// frames, read through the posterior (so the state and the latent
+    /// filter start where real motion would put them); the prior takes over
+    /// at frame `K`.
+    fn sample(&self, eps: &Tensor, start: Option<&Tensor>) -> Result<Tensor>;
+}
+
+/// A dense layer's parameters.
+#[derive(Clone, Debug)]
+struct Lin {
+    w: Tensor,
+    b: Tensor,
+}
+
+impl Lin {
+    fn new(inp: usize, out: usize, vb: VarBuilder) -> Result<Self> {
+        Ok(Lin {
+            w: vb.get((out, inp), "weight")?,
+            b: vb.get(out, "bias")?,
+        })
+    }
+
+    fn forward(&self, x: &Tensor, act: Act) -> Result<Tensor> {
+        linear(x, &self.w, &self.b, act)
+    }
+}
+
+/// Mean and standard-deviation heads of a Gaussian, applied as one layer
+/// (`[μ | logit σ]`).
+fn stacked(mean: &Lin, std: &Lin) -> Result<Lin> {
+    Ok(Lin {
+        w: Tensor::cat(&[&mean.w, &std.w], 0)?,
+        b: Tensor::cat(&[&mean.b, &std.b], 0)?,
+    })
+}
+
+/// The model.
+#[derive(Clone, Debug)]
+pub struct Vrnn {
+    config: Config,
+    phi_x: [Lin; 2],
+    prior: [Lin; 2],
+    encoder: [Lin; 2],
+    decoder: [Lin; 3],
+    w_ih: Tensor,
+    w_hh: Tensor,
+    b_ih: Tensor,
+    b_hh: Tensor,
+}
+
+/// What the recurrence gives per row.
+struct Scan {
+    /// LSTM state before the step `[B, T, H]`.
+    h: Tensor,
+    /// Posterior `[μ | σ]`, `[B, T, 2Z]`.
+    q: Tensor,
+    /// Posterior sample `[B, T, Z]`.
+    z: Tensor,
 }
 
 impl Vrnn {
-    /// Build the model; variables are created through `vb`.
+    /// Build the model; variables are created through `vb` (the names of
+    /// PyTorch's `nn.Linear` and `nn.LSTM`).
     pub fn new(config: &Config, vb: VarBuilder) -> Result<Self> {
         let c = config;
         let [e1, e2] = c.extractor;
         let [d1, d2] = c.decoder;
-        let params = |vb: &VarBuilder| -> Result<Vec<Tensor>> {
-            fused::param_layout(c)
-                .into_iter()
-                .map(|(name, shape)| vb.get(shape, &name))
-                .collect()
+        let needs_body = c.parts.skeleton || c.parts.feet > 0.0 || c.parts.foot_lock;
+        if needs_body && (c.input != 1 + 3 * BONES + 3 || c.body.is_none()) {
+            candle_core::bail!("the skeleton and feet parts need the 58 features and the training set's statistics (Config::fit_to)");
+        }
+        for (what, rho) in [
+            ("latent_filter", c.parts.latent_filter),
+            ("output_filter", c.parts.output_filter),
+        ] {
+            if !(0.0..1.0).contains(&rho) {
+                candle_core::bail!("{what} must be in [0, 1), got {rho}");
+            }
+        }
+        let gaussian = |input: usize, vb: VarBuilder| -> Result<[Lin; 2]> {
+            Ok([
+                Lin::new(input, c.latent, vb.pp("mean"))?,
+                Lin::new(input, c.latent, vb.pp("std"))?,
+            ])
         };
+        let rnn = vb.pp("rnn");
+        let (h4, lstm_in) = (4 * c.hidden, e2 + c.latent);
         Ok(Vrnn {
             config: c.clone(),
             phi_x: [
-                linear(c.input, e1, vb.pp("phi_x.0"))?,
-                linear(e1, e2, vb.pp("phi_x.1"))?,
+                Lin::new(c.input, e1, vb.pp("phi_x.0"))?,
+                Lin::new(e1, e2, vb.pp("phi_x.1"))?,
             ],
-            prior: Gaussian::new(c.hidden, c.latent, vb.pp("prior"))?,
-            encoder: Gaussian::new(e2 + c.hidden, c.latent, vb.pp("encoder"))?,
+            prior: gaussian(c.hidden, vb.pp("prior"))?,
+            encoder: gaussian(e2 + c.hidden, vb.pp("encoder"))?,
             decoder: [
-                linear(c.latent + c.hidden, d1, vb.pp("decoder.0"))?,
-                linear(d1, d2, vb.pp("decoder.1"))?,
-                linear(d2, c.input, vb.pp("decoder.2"))?,
+                Lin::new(c.latent + c.hidden, d1, vb.pp("decoder.0"))?,
+                Lin::new(d1, d2, vb.pp("decoder.1"))?,
+                Lin::new(d2, c.input + contacts(c), vb.pp("decoder.2"))?,
             ],
-            rnn: candle_nn::rnn::lstm(
-                e2 + c.latent,
-                c.hidden,
-                LSTMConfig::default(),
-                vb.pp("rnn"),
-            )?,
-            params: params(&vb)?,
+            w_ih: rnn.get((h4, lstm_in), "weight_ih_l0")?,
+            w_hh: rnn.get((h4, c.hidden), "weight_hh_l0")?,
+            b_ih: rnn.get(h4, "bias_ih_l0")?,
+            b_hh: rnn.get(h4, "bias_hh_l0")?,
         })
     }
 
-    /// The model's sizes.
-    pub fn config(&self) -> &Config {
-        &self.config
+    fn dims(&self) -> ScanDims {
+        ScanDims {
+            hidden: self.config.hidden,
+            latent: self.config.latent,
+        }
     }
 
     fn features(&self, x: &Tensor) -> Result<Tensor> {
-        let h = self.phi_x[0].forward(x)?.relu()?;
-        self.phi_x[1].forward(&h)?.relu()
+        let a = self.phi_x[0].forward(x, Act::Relu)?;
+        self.phi_x[1].forward(&a, Act::Relu)
     }
 
-    /// Decode `z` given the LSTM output `h` (the mean of `p(x | z, h)`).
-    pub fn decode(&self, z: &Tensor, h: &Tensor) -> Result<Tensor> {
-        let a = self.decoder[0]
-            .forward(&Tensor::cat(&[z, h], D::Minus1)?)?
-            .relu()?;
-        let b = self.decoder[1].forward(&a)?.relu()?;
-        self.decoder[2].forward(&b)
-    }
-
-    /// Losses of a batch `x: [B, T, input]` with reparameterisation noise
-    /// `eps: [T, B, latent]`.
-    pub fn forward(&self, x: &Tensor, eps: &Tensor) -> Result<Losses> {
-        let (b, t, _) = x.dims3()?;
-        let mut state: LSTMState = self.rnn.zero_state(b)?;
-        let mut recon = Tensor::zeros(b, DType::F32, x.device())?;
-        let mut kl = Tensor::zeros(b, DType::F32, x.device())?;
-        for step in 0..t {
-            // Slicing inputs (not parameters) keeps the backward pass linear in T.
-            let xt = x.narrow(1, step, 1)?.squeeze(1)?;
-            let et = eps.get(step)?;
-            let h = state.h().clone();
-            let feat = self.features(&xt)?;
-            let (mu_z, sigma_z) = self
-                .encoder
-                .forward(&Tensor::cat(&[&feat, &h], D::Minus1)?)?;
-            let z = (&mu_z + (&sigma_z * &et)?)?;
-            let x_hat = self.decode(&z, &h)?;
-            recon = (recon + (x_hat - &xt)?.sqr()?.sum(D::Minus1)?)?;
-            let step_kl = if step == 0 {
-                kl_standard(&mu_z, &sigma_z)?
-            } else {
-                let (mu_p, sigma_p) = self.prior.forward(&h)?;
-                kl_gaussians(&mu_z, &sigma_z, &mu_p, &sigma_p)?
-            };
-            kl = (kl + step_kl)?;
-            state = self
-                .rnn
-                .step(&Tensor::cat(&[&feat, &z], D::Minus1)?, &state)?;
-        }
-        Ok(Losses {
-            recon: recon.mean(0)?,
-            kl: kl.mean(0)?,
+    /// The recurrence over whole sequences `x: [B, T, input]` with noise
+    /// `eps: [B, T, Z]`.
+    fn scan(&self, x: &Tensor, eps: &Tensor) -> Result<Scan> {
+        let c = &self.config;
+        let (e2, h, z) = (c.extractor[1], c.hidden, c.latent);
+        let feat = self.features(x)?;
+        // What does not depend on the recurrence, for all rows at once: the
+        // x'' halves of the posterior and of the LSTM input product.
+        let enc = stacked(&self.encoder[0], &self.encoder[1])?;
+        let pre = Lin {
+            w: Tensor::cat(&[&enc.w.narrow(1, 0, e2)?, &self.w_ih.narrow(1, 0, e2)?], 0)?,
+            b: Tensor::cat(&[&enc.b, &(&self.b_ih + &self.b_hh)?], 0)?,
+        };
+        let pre = pre.forward(&feat, Act::None)?;
+        let w = Tensor::cat(
+            &[
+                enc.w.narrow(1, e2, h)?.flatten_all()?,
+                self.w_ih.narrow(1, e2, z)?.flatten_all()?,
+                self.w_hh.flatten_all()?,
+            ],
+            0,
+        )?;
+        let s = latent_lstm(&pre, eps, &w, self.dims())?;
+        Ok(Scan {
+            h: s.narrow(D::Minus1, 0, h)?,
+            q: s.narrow(D::Minus1, h, 2 * z)?,
+            z: s.narrow(D::Minus1, h + 2 * z, z)?,
         })
     }
 
-    /// Reconstruct real windows `x: [B, T, input]`: encode each step with the
-    /// posterior mean (`z = μz`, no noise), decode it (the decoder mean) and
-    /// feed the real frame to the recurrence. Returns `[B, T, input]`.
-    pub fn reconstruct(&self, x: &Tensor) -> Result<Tensor> {
-        let (b, t, _) = x.dims3()?;
-        let mut state: LSTMState = self.rnn.zero_state(b)?;
-        let mut frames = Vec::with_capacity(t);
-        for step in 0..t {
-            let xt = x.narrow(1, step, 1)?.squeeze(1)?;
-            let h = state.h().clone();
-            let feat = self.features(&xt)?;
-            let (mu_z, _) = self
-                .encoder
-                .forward(&Tensor::cat(&[&feat, &h], D::Minus1)?)?;
-            frames.push(self.decode(&mu_z, &h)?);
-            state = self
-                .rnn
-                .step(&Tensor::cat(&[&feat, &mu_z], D::Minus1)?, &state)?;
-        }
-        Tensor::stack(&frames, 1)
+    /// The decoder's layers over rows `[…, Z]` and `[…, H]` (before the
+    /// output filter and the skeleton).
+    fn decode_raw(&self, z: &Tensor, h: &Tensor) -> Result<Tensor> {
+        let u = Tensor::cat(&[z, h], D::Minus1)?;
+        let a = self.decoder[0].forward(&u, Act::Relu)?;
+        let b = self.decoder[1].forward(&a, Act::Relu)?;
+        self.decoder[2].forward(&b, Act::None)
     }
 
-    /// Every parameter flattened and concatenated in [`fused::param_layout`]
-    /// order (differentiable).
-    pub fn flat_params(&self) -> Result<Tensor> {
-        let flat: Vec<Tensor> = self
-            .params
+    /// Decoder output (filtered) → features: through the skeleton when it
+    /// is on, with bone lengths `lengths: […, 18]`.
+    fn finish(&self, o: &Tensor, lengths: Option<&Tensor>) -> Result<Tensor> {
+        let o = o.narrow(D::Minus1, 0, self.config.input)?;
+        match (&self.config.body, lengths) {
+            (Some(body), Some(l)) if self.config.parts.skeleton => self.place(&o, body, l),
+            _ => Ok(o),
+        }
+    }
+
+    /// The contact logits of decoder outputs (foot-lock part).
+    fn contact_logits(&self, o: &Tensor) -> Result<Option<Tensor>> {
+        match contacts(&self.config) {
+            0 => Ok(None),
+            n => o.narrow(D::Minus1, self.config.input, n).map(Some),
+        }
+    }
+
+    /// Foot-locked root velocity over sequences: frames 1.. of `x_hat`
+    /// (normalised `[B, T, input]`) get the velocity that keeps the feet of
+    /// frame `t − 1` in place, weighted by the contact probabilities
+    /// (`logits: [B, T, 2]`).
+    fn lock_sequence(&self, x_hat: &Tensor, logits: &Tensor) -> Result<Tensor> {
+        let (_, t, _) = x_hat.dims3()?;
+        let Some(body) = &self.config.body else {
+            return Ok(x_hat.clone());
+        };
+        let x_hat = &ground(x_hat, logits, body)?;
+        if t < 2 {
+            return Ok(x_hat.clone());
+        }
+        let locked = lock(
+            &x_hat.narrow(1, 0, t - 1)?,
+            &x_hat.narrow(1, 1, t - 1)?,
+            &logits.narrow(1, 1, t - 1)?,
+            body,
+        )?;
+        Tensor::cat(&[&x_hat.narrow(1, 0, 1)?, &locked], 1)
+    }
+
+    /// The whole decoder over sequences `[B, T, ·]`: latent filter, layers,
+    /// output filter, skeleton, foot lock. Returns the features and, with the
+    /// foot lock, the contact logits.
+    fn decode(
+        &self,
+        z: &Tensor,
+        h: &Tensor,
+        lengths: Option<&Tensor>,
+    ) -> Result<(Tensor, Option<Tensor>)> {
+        let o = self.decode_raw(&self.filtered(z)?, h)?;
+        let rho = self.config.parts.output_filter;
+        let o = if rho > 0.0 {
+            filter::smooth(&o, rho)?
+        } else {
+            o
+        };
+        let x_hat = self.finish(&o, lengths)?;
+        match self.contact_logits(&o)? {
+            Some(l) => Ok((self.lock_sequence(&x_hat, &l)?, Some(l))),
+            None => Ok((x_hat, None)),
+        }
+    }
+
+    /// Skeleton part: decoder outputs `[y | 18 bone directions | velocities]`
+    /// (y and velocities normalised) → the 58 normalised features.
+    fn place(&self, o: &Tensor, body: &Body, lengths: &Tensor) -> Result<Tensor> {
+        let dev = o.device();
+        let j = 3 * BONES;
+        let yn = o.narrow(D::Minus1, 0, 1)?;
+        let y = ((&yn * body.std[0] as f64)? + body.mean[0] as f64)?;
+        let p = forward_kinematics(&y, &o.narrow(D::Minus1, 1, j)?, lengths)?;
+        let mean = Tensor::new(&body.mean[1..1 + j], dev)?;
+        let std = Tensor::new(&body.std[1..1 + j], dev)?;
+        let pn = p.broadcast_sub(&mean)?.broadcast_div(&std)?;
+        let rest = o.narrow(D::Minus1, 1 + j, self.config.input - 1 - j)?;
+        Tensor::cat(&[&yn, &pn, &rest], D::Minus1)
+    }
+
+    /// The decoder's latent: `z` through the causal filter when it is on.
+    fn filtered(&self, z: &Tensor) -> Result<Tensor> {
+        let rho = self.config.parts.latent_filter;
+        if rho > 0.0 {
+            filter::smooth(z, rho)
+        } else {
+            Ok(z.clone())
+        }
+    }
+
+    /// Each window's bone lengths (mean over its frames) for every row:
+    /// `[B, T, 18]`, or `None` without the skeleton part.
+    fn window_bones(&self, x: &Tensor) -> Result<Option<Tensor>> {
+        let Some(body) = self
+            .config
+            .body
+            .as_ref()
+            .filter(|_| self.config.parts.skeleton)
+        else {
+            return Ok(None);
+        };
+        let (b, t, f) = x.dims3()?;
+        let v = x.flatten_all()?.to_vec1::<f32>()?;
+        let raw: Vec<f32> = v
             .iter()
-            .map(|p| p.flatten_all())
-            .collect::<Result<_>>()?;
-        Tensor::cat(&flat, 0)
+            .enumerate()
+            .map(|(i, v)| v * body.std[i % f] + body.mean[i % f])
+            .collect();
+        let (y, joints) = split_raw(&raw, f);
+        let per_row = bone_lengths(&y, &joints);
+        let mut out = vec![0.0f32; b * t * BONES];
+        for w in 0..b {
+            let mut mean = [0.0f64; BONES];
+            for r in w * t..(w + 1) * t {
+                for (m, l) in mean.iter_mut().zip(&per_row[r * BONES..(r + 1) * BONES]) {
+                    *m += *l as f64;
+                }
+            }
+            for r in w * t..(w + 1) * t {
+                for (o, m) in out[r * BONES..(r + 1) * BONES].iter_mut().zip(&mean) {
+                    *o = (m / t as f64) as f32;
+                }
+            }
+        }
+        Tensor::from_vec(out, (b, t, BONES), x.device()).map(Some)
     }
 
-    /// Losses of a batch, as [`Vrnn::forward`], through the fused kernel of
-    /// [`fused`] on the CPU (autograd elsewhere). With `kl_weight`, the
-    /// forward pass also prepares the gradient of `recon + kl_weight · kl`,
-    /// which `backward` of exactly that sum then reuses; any other use of the
-    /// losses stays correct but computes the gradient again.
-    pub fn losses(&self, x: &Tensor, eps: &Tensor, kl_weight: Option<f64>) -> Result<Losses> {
-        if !x.device().is_cpu() {
-            return self.forward(x, eps);
+    /// The mean skeleton for `b` sequences (sampling): `[b, 18]`.
+    fn mean_bones(&self, b: usize, device: &Device) -> Result<Option<Tensor>> {
+        match self
+            .config
+            .body
+            .as_ref()
+            .filter(|_| self.config.parts.skeleton)
+        {
+            Some(body) => Tensor::new(body.bones.as_slice(), device)?
+                .unsqueeze(0)?
+                .broadcast_as((b, BONES))?
+                .contiguous()
+                .map(Some),
+            None => Ok(None),
         }
-        let flat = self.flat_params()?;
-        let op = fused::VrnnLoss::new(&self.config, kl_weight.map(|w| w as f32));
-        let out = x.contiguous()?.apply_op3(&eps.contiguous()?, &flat, op)?;
+    }
+}
+
+impl MotionModel for Vrnn {
+    fn config(&self) -> &Config {
+        &self.config
+    }
+
+    fn losses(&self, x: &Tensor, eps: &Tensor) -> Result<Losses> {
+        let b = x.dim(0)? as f64;
+        let eps = eps.transpose(0, 1)?.contiguous()?;
+        let s = self.scan(x, &eps)?;
+        let p = stacked(&self.prior[0], &self.prior[1])?.forward(&s.h, Act::None)?;
+        let kl = gaussian_kl(&s.q, &p)?;
+        let lengths = self.window_bones(x)?;
+        let (x_hat, logits) = self.decode(&s.z, &s.h, lengths.as_ref())?;
+        let recon = squared_error(&x_hat, x)?;
+        let mut extra = Tensor::zeros((), DType::F32, x.device())?;
+        if let (Some(body), w) = (&self.config.body, self.config.parts.feet) {
+            if w > 0.0 {
+                extra = (extra + (foot_slide(&x_hat, x, body)? * (w / b))?)?;
+            }
+        }
+        if let (Some(body), Some(l)) = (&self.config.body, &logits) {
+            extra = (extra + (contact_loss(l, x, body)? / b)?)?;
+        }
         Ok(Losses {
-            recon: out.get(0)?,
-            kl: out.get(1)?,
+            recon: (recon / b)?,
+            kl: (kl / b)?,
+            extra,
         })
     }
 
-    /// Sample `eps.len()` frames per sequence from the prior, feeding each
-    /// decoded frame (the decoder mean) back as the next input.
-    /// `eps: [T, B, latent]`; returns `[B, T, input]` (normalised units).
-    pub fn sample(&self, eps: &Tensor) -> Result<Tensor> {
-        let (t, b, _) = eps.dims3()?;
-        if eps.device().is_cpu() {
-            let w = self.flat_params()?.to_vec1::<f32>()?;
-            let e = eps.flatten_all()?.to_vec1::<f32>()?;
-            let out = fused::sample(&self.config, &w, &e, b, t);
-            return Tensor::from_vec(out, (b, t, self.config.input), eps.device());
-        }
-        self.sample_autograd(eps)
+    fn reconstruct(&self, x: &Tensor) -> Result<Tensor> {
+        let (b, t, _) = x.dims3()?;
+        let zero = Tensor::zeros((b, t, self.config.latent), DType::F32, x.device())?;
+        // With ε = 0 the posterior sample is its mean.
+        let s = self.scan(x, &zero)?;
+        let lengths = self.window_bones(x)?;
+        Ok(self.decode(&s.z, &s.h, lengths.as_ref())?.0)
     }
 
-    /// [`Vrnn::sample`] through candle ops on any device (the reference for
-    /// the fused CPU sampler).
-    pub fn sample_autograd(&self, eps: &Tensor) -> Result<Tensor> {
+    fn sample(&self, eps: &Tensor, start: Option<&Tensor>) -> Result<Tensor> {
+        let c = &self.config;
         let (t, b, _) = eps.dims3()?;
-        let mut state = self.rnn.zero_state(b)?;
+        let dev = eps.device();
+        let prior = stacked(&self.prior[0], &self.prior[1])?;
+        let encoder = stacked(&self.encoder[0], &self.encoder[1])?;
+        let gates_in = Lin {
+            w: self.w_ih.clone(),
+            b: (&self.b_ih + &self.b_hh)?,
+        };
+        let no_bias = self.b_hh.zeros_like()?;
+        let k = start.map_or(Ok(0), |s| s.dim(1))?;
+        // Bone lengths: the start frames' own skeleton, else the training
+        // set's mean skeleton.
+        let bones = match start {
+            Some(s) if k > 0 => self
+                .window_bones(s)?
+                .map(|l| l.narrow(1, 0, 1)?.squeeze(1))
+                .transpose()?,
+            _ => self.mean_bones(b, dev)?,
+        };
+        let (rho, rho_out) = (c.parts.latent_filter, c.parts.output_filter);
+        let mut h = Tensor::zeros((b, c.hidden), DType::F32, dev)?;
+        let mut cell = h.clone();
+        let (mut zf, mut of): (Option<Tensor>, Option<Tensor>) = (None, None);
         let mut frames = Vec::with_capacity(t);
+        // A Gaussian head's `[μ | logit σ]` and noise → a draw.
+        let draw = |p: &Tensor, e: &Tensor| -> Result<Tensor> {
+            let mu = p.narrow(1, 0, c.latent)?;
+            let sigma = candle_nn::ops::sigmoid(&p.narrow(1, c.latent, c.latent)?)?
+                .clamp(SIGMA_MIN, 1.0)?;
+            mu + (sigma * e)?
+        };
+        // One step of a causal filter with pole `rho` (the first value as is).
+        let step_filter = |prev: &Option<Tensor>, x: Tensor, rho: f64| -> Result<Tensor> {
+            match prev {
+                Some(p) if rho > 0.0 => filter::step(p, &x, rho),
+                _ => Ok(x),
+            }
+        };
         for step in 0..t {
-            let h = state.h().clone();
-            let et = eps.get(step)?;
-            let z = if step == 0 {
-                et
-            } else {
-                let (mu_p, sigma_p) = self.prior.forward(&h)?;
-                (mu_p + (sigma_p * et)?)?
+            let e = eps.get(step)?;
+            // A real start frame is read through the posterior; later frames
+            // draw z from the prior (N(0, I) at the first step).
+            let (real, z) = match start.filter(|_| step < k) {
+                Some(s) => {
+                    let x = s.narrow(1, step, 1)?.squeeze(1)?;
+                    let feat = self.features(&x)?;
+                    let q = encoder.forward(&Tensor::cat(&[&feat, &h], 1)?, Act::None)?;
+                    (Some((x, feat)), draw(&q, &e)?)
+                }
+                None if step == 0 => (None, e),
+                None => (None, draw(&prior.forward(&h, Act::None)?, &e)?),
             };
-            let x_hat = self.decode(&z, &h)?;
-            let feat = self.features(&x_hat)?;
-            state = self
-                .rnn
-                .step(&Tensor::cat(&[&feat, &z], D::Minus1)?, &state)?;
-            frames.push(x_hat);
+            let zd = step_filter(&zf, z.clone(), rho)?;
+            // The decoder runs on start frames too, so its output filter has
+            // the history it has in training.
+            let o = step_filter(&of, self.decode_raw(&zd, &h)?, rho_out)?;
+            let (x, feat) = match real {
+                Some(r) => r,
+                None => {
+                    let mut x = self.finish(&o, bones.as_ref())?;
+                    if let (Some(prev), Some(l), Some(body)) =
+                        (frames.last(), self.contact_logits(&o)?, &self.config.body)
+                    {
+                        let one = |t: &Tensor| t.unsqueeze(1);
+                        let g = ground(&one(&x)?, &one(&l)?, body)?;
+                        x = lock(&one(prev)?, &g, &one(&l)?, body)?.squeeze(1)?;
+                    }
+                    let feat = self.features(&x)?;
+                    (x, feat)
+                }
+            };
+            zf = Some(zd);
+            of = Some(o);
+            let gates = (gates_in.forward(&Tensor::cat(&[&feat, &z], 1)?, Act::None)?
+                + linear(&h, &self.w_hh, &no_bias, Act::None)?)?;
+            let (hn, cn) = lstm_cell(&gates, &cell)?;
+            h = hn;
+            cell = cn;
+            frames.push(x);
         }
         Tensor::stack(&frames, 1)
     }
+}
+
+/// Toe height under which a foot is on the floor (CMU units: 5 cm).
+pub const CONTACT_UNITS: f64 = 0.05 / 0.0564;
+
+/// The toes (joint indices) whose contact the foot lock predicts.
+const TOES: [usize; 2] = [4, 8];
+
+/// Extra decoder outputs: one contact logit per toe with the foot lock.
+fn contacts(c: &Config) -> usize {
+    if c.parts.foot_lock {
+        TOES.len()
+    } else {
+        0
+    }
+}
+
+/// Raw (CMU-unit) value of feature `k` of normalised rows `v: […, input]`.
+fn raw_col(v: &Tensor, k: usize, body: &Body) -> Result<Tensor> {
+    (v.narrow(D::Minus1, k, 1)? * body.std[k] as f64)? + body.mean[k] as f64
+}
+
+/// 1 where the real toe of normalised rows `x` is below [`CONTACT_UNITS`]:
+/// `[…, 2]`.
+fn real_contacts(x: &Tensor, body: &Body) -> Result<Tensor> {
+    let cols: Vec<Tensor> = TOES
+        .iter()
+        .map(|&toe| {
+            raw_col(x, 1 + 3 * (toe - 1) + 1, body)?
+                .lt(CONTACT_UNITS)?
+                .to_dtype(DType::F32)
+        })
+        .collect::<Result<_>>()?;
+    Tensor::cat(&cols, D::Minus1)
+}
+
+/// Binary cross-entropy of contact logits against the real contacts of
+/// `x`, summed over windows, frames and toes.
+fn contact_loss(logits: &Tensor, x: &Tensor, body: &Body) -> Result<Tensor> {
+    let target = real_contacts(x, body)?;
+    // softplus(l) − t·l, written stably: max(l, 0) − t·l + log(1 + e^{−|l|}).
+    let soft = (logits.relu()? + (logits.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
+    (soft - (logits * target)?)?.sum_all()
+}
+
+/// Vertical half of the foot lock: every height of normalised rows
+/// `x: […, input]` (the root's and each joint's local y) moved by
+/// `α·(h_c − y_lock)`, where `y_lock` is the toes' height weighted by their
+/// contact probabilities, `h_c` the training set's toe height in contact and
+/// `α` the probability that some foot is down: a planted foot stands on the
+/// floor, so the figure can neither sink nor float while it is planted.
+fn ground(x: &Tensor, logits: &Tensor, body: &Body) -> Result<Tensor> {
+    let f = x.dim(D::Minus1)?;
+    let p = candle_nn::ops::sigmoid(logits)?;
+    let mut wy: Option<Tensor> = None;
+    for (i, &toe) in TOES.iter().enumerate() {
+        let y = raw_col(x, 1 + 3 * (toe - 1) + 1, body)?;
+        let term = (p.narrow(D::Minus1, i, 1)? * y)?;
+        wy = Some(match wy {
+            None => term,
+            Some(a) => (a + term)?,
+        });
+    }
+    let wsum = p.sum_keepdim(D::Minus1)?;
+    let none = (1.0 - p.narrow(D::Minus1, 0, 1)?)?.mul(&(1.0 - p.narrow(D::Minus1, 1, 1)?)?)?;
+    let y_lock = (wy.unwrap_or(wsum.zeros_like()?) / (&wsum + 1e-6)?)?;
+    let shift = ((1.0 - none)? * (body.contact_height as f64 - y_lock)?)?;
+    // 1/std on the height columns, 0 elsewhere.
+    let mut per: Vec<f32> = vec![0.0; f];
+    per[0] = 1.0 / body.std[0];
+    for j in 0..BONES {
+        let k = 1 + 3 * j + 1;
+        per[k] = 1.0 / body.std[k];
+    }
+    let per = Tensor::new(per.as_slice(), x.device())?;
+    x + shift.broadcast_mul(&per)?
+}
+
+/// The foot lock: frame `cur` (normalised `[…, n, input]`) with the root's
+/// planar velocity replaced by `α·v_lock + (1 − α)·v`, where `v_lock` keeps
+/// the toes of `prev` in place (each toe weighted by its contact
+/// probability `sigmoid(logits)`), `α = 1 − Π(1 − p)` the probability that
+/// some foot is down and `v` the decoded velocity.
+fn lock(prev: &Tensor, cur: &Tensor, logits: &Tensor, body: &Body) -> Result<Tensor> {
+    let f = cur.dim(D::Minus1)?;
+    let (kx, kz, kt) = (f - 3, f - 2, f - 1);
+    let th = raw_col(cur, kt, body)?;
+    let (c, s) = (th.cos()?, th.sin()?);
+    let p = candle_nn::ops::sigmoid(logits)?;
+    let (mut wx, mut wz) = (Tensor::zeros_like(&th)?, Tensor::zeros_like(&th)?);
+    let mut wsum = Tensor::zeros_like(&th)?;
+    let mut none = Tensor::ones_like(&th)?;
+    for (i, &toe) in TOES.iter().enumerate() {
+        let k = 1 + 3 * (toe - 1);
+        let (lx, lz) = (raw_col(cur, k, body)?, raw_col(cur, k + 2, body)?);
+        let (px, pz) = (raw_col(prev, k, body)?, raw_col(prev, k + 2, body)?);
+        // s = v + R(θ)·p_t − p_{t−1} = 0
+        let vx = (px - ((&c * &lx)? + (&s * &lz)?)?)?;
+        let vz = (pz - ((&c * &lz)? - (&s * &lx)?)?)?;
+        let w = p.narrow(D::Minus1, i, 1)?;
+        wx = (wx + (&w * vx)?)?;
+        wz = (wz + (&w * vz)?)?;
+        wsum = (wsum + &w)?;
+        none = (none * (1.0 - &w)?)?;
+    }
+    let alpha = (1.0 - none)?;
+    let blend = |lock: Tensor, k: usize| -> Result<Tensor> {
+        let lock = (lock / (&wsum + 1e-6)?)?;
+        let free = raw_col(cur, k, body)?;
+        let v = ((&alpha * lock)? + ((1.0 - &alpha)? * free)?)?;
+        (v - body.mean[k] as f64)? / body.std[k] as f64
+    };
+    let (vx, vz) = (blend(wx, kx)?, blend(wz, kz)?);
+    Tensor::cat(
+        &[
+            &cur.narrow(D::Minus1, 0, kx)?,
+            &vx,
+            &vz,
+            &cur.narrow(D::Minus1, kt, 1)?,
+        ],
+        D::Minus1,
+    )
+}
+
+/// The foot-contact penalty: `Σ` over windows, frames `t ≥ 1` and both toes
+/// where the real toe (in `x`) is below [`CONTACT_UNITS`], of the squared
+/// horizontal displacement of the decoded toe (in `x_hat`) from frame
+/// `t − 1` to `t` in the world, expressed in frame `t − 1`'s axes:
+/// `s = v_t + R(θ_t)·p_t − p_{t−1}` with `v` the root's planar velocity,
+/// `θ` its turn and `p` the toe's local (x, z) (see `to_global`).
+fn foot_slide(x_hat: &Tensor, x: &Tensor, body: &Body) -> Result<Tensor> {
+    let (_, t, f) = x.dims3()?;
+    if t < 2 {
+        return Tensor::zeros((), DType::F32, x.device());
+    }
+    let dev = x.device();
+    let mean = Tensor::new(body.mean.as_slice(), dev)?;
+    let std = Tensor::new(body.std.as_slice(), dev)?;
+    let raw = |v: &Tensor| v.broadcast_mul(&std)?.broadcast_add(&mean);
+    let (xh, xr) = (raw(x_hat)?, raw(x)?);
+    let col = |v: &Tensor, k: usize, from: usize| v.narrow(2, k, 1)?.narrow(1, from, t - 1);
+    let (vx, vz, th) = (
+        col(&xh, f - 3, 1)?,
+        col(&xh, f - 2, 1)?,
+        col(&xh, f - 1, 1)?,
+    );
+    let (c, s) = (th.cos()?, th.sin()?);
+    let mut total = Tensor::zeros((), DType::F32, dev)?;
+    for toe in [4usize, 8] {
+        let k = 1 + 3 * (toe - 1);
+        let (lx, lz) = (col(&xh, k, 1)?, col(&xh, k + 2, 1)?);
+        let (px, pz) = (col(&xh, k, 0)?, col(&xh, k + 2, 0)?);
+        let sx = (((&vx + (&c * &lx)?)? + (&s * &lz)?)? - px)?;
+        let sz = (((&vz - (&s * &lx)?)? + (&c * &lz)?)? - pz)?;
+        let contact = col(&xr, k + 1, 1)?
+            .lt(CONTACT_UNITS)?
+            .to_dtype(DType::F32)?;
+        let slide = ((sx.sqr()? + sz.sqr()?)? * contact)?.sum_all()?;
+        total = (total + slide)?;
+    }
+    Ok(total)
 }
 
 /// `KL(N(μ, σ) ‖ N(0, 1))` summed over the last dimension.
-pub fn kl_standard(mu: &Tensor, sigma: &Tensor) -> Result<Tensor> {
-    // −log σ + (σ² + μ²)/2 − 1/2
-    let v = ((sigma.sqr()? + mu.sqr()?)? * 0.5)?;
-    ((v - sigma.log()?)? - 0.5)?.sum(D::Minus1)
-}
-
-/// `KL(N(μz, σz) ‖ N(μp, σp))` summed over the last dimension.
-pub fn kl_gaussians(mu_z: &Tensor, s_z: &Tensor, mu_p: &Tensor, s_p: &Tensor) -> Result<Tensor> {
-    // log σp − log σz + (σz² + (μz − μp)²) / (2 σp²) − 1/2
-    let num = (s_z.sqr()? + (mu_z - mu_p)?.sqr()?)?;
-    let frac = (num / (s_p.sqr()? * 2.0)?)?;
-    (((s_p.log()? - s_z.log()?)? + frac)? - 0.5)?.sum(D::Minus1)
-}
+pub use blocks::kl::{kl_gaussians, kl_standard};
 
 /// The device to train on: CUDA when built with `cuda` and one is present.
 pub fn default_device() -> Device {

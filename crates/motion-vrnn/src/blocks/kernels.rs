@@ -1,0 +1,139 @@
+//! Shared CPU kernels: strided matrix products and vectorisable activations.
+
+use crate::model::SIGMA_MIN;
+
+/// A strided matrix view into a slice: element `(r, c)` is at
+/// `off + r·rs + c·cs`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct V {
+    pub off: usize,
+    pub rs: usize,
+    pub cs: usize,
+}
+
+/// Row-major view with row stride `rs`, starting at `off`.
+pub(crate) fn rm(off: usize, rs: usize) -> V {
+    V { off, rs, cs: 1 }
+}
+
+/// The transpose of a row-major block with row stride `rs` starting at `off`.
+pub(crate) fn tr(off: usize, rs: usize) -> V {
+    V { off, rs: 1, cs: rs }
+}
+
+/// `c (+)= a · b` with `a: m×k`, `b: k×n`, `c: m×n`; single-threaded.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn mm(
+    (m, n, k): (usize, usize, usize),
+    c: &mut [f32],
+    cv: V,
+    acc: bool,
+    a: &[f32],
+    av: V,
+    b: &[f32],
+    bv: V,
+) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        if !acc {
+            for r in 0..m {
+                for q in 0..n {
+                    c[cv.off + r * cv.rs + q * cv.cs] = 0.0;
+                }
+            }
+        }
+        return;
+    }
+    let end = |v: V, r: usize, q: usize| v.off + (r - 1) * v.rs + (q - 1) * v.cs + 1;
+    assert!(end(cv, m, n) <= c.len(), "gemm: destination out of bounds");
+    assert!(end(av, m, k) <= a.len(), "gemm: lhs out of bounds");
+    assert!(end(bv, k, n) <= b.len(), "gemm: rhs out of bounds");
+    // SAFETY: the asserts above keep every access inside the slices; `c` is
+    // borrowed mutably, so it cannot alias `a` or `b`.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            c.as_mut_ptr().add(cv.off),
+            cv.cs as isize,
+            cv.rs as isize,
+            acc,
+            a.as_ptr().add(av.off),
+            av.cs as isize,
+            av.rs as isize,
+            b.as_ptr().add(bv.off),
+            bv.cs as isize,
+            bv.rs as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        )
+    }
+}
+
+/// `exp(x)` in f32 without a libm call, so loops over it vectorise
+/// (Cephes' `expf`: `2ⁿ · p(r)` with `r = x − n·ln 2`; about 1 ulp).
+#[inline(always)]
+pub(crate) fn exp(x: f32) -> f32 {
+    let x = x.clamp(-87.0, 88.0);
+    // Round x/ln 2 to the nearest integer with the 1.5·2²³ trick; the
+    // integer sits in the low mantissa bits of `big`.
+    let big = x * std::f32::consts::LOG2_E + 12_582_912.0;
+    let n = big - 12_582_912.0;
+    let r = x - n * 0.693_359_4 - n * -2.121_944_4e-4;
+    let p = ((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r
+        + 0.166_666_65)
+        * r
+        + 0.5;
+    let y = p * r * r + r + 1.0;
+    let k = big.to_bits().wrapping_sub(0x4B40_0000);
+    y * f32::from_bits(k.wrapping_add(127) << 23)
+}
+
+/// `tanh(x)` (Cephes' `tanhf`: an odd polynomial below 0.625, else from
+/// [`exp`]); branch-free so loops over it vectorise.
+#[inline(always)]
+pub(crate) fn tanh(x: f32) -> f32 {
+    let a = x.abs();
+    let z = x * x;
+    let small = ((((-5.704_988_7e-3 * z + 2.063_909e-2) * z - 5.373_971_6e-2) * z + 0.133_314_42)
+        * z
+        - 0.333_332_8)
+        * z
+        * x
+        + x;
+    let big = (1.0 - 2.0 / (exp(2.0 * a) + 1.0)).copysign(x);
+    if a < 0.625 {
+        small
+    } else {
+        big
+    }
+}
+
+/// The logistic function.
+#[inline(always)]
+pub(crate) fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + exp(-x))
+}
+
+/// `sigmoid` clamped to `[SIGMA_MIN, 1]`, as the models' standard deviations.
+#[inline]
+pub(crate) fn sigma(x: f32) -> f32 {
+    sigmoid(x).clamp(SIGMA_MIN as f32, 1.0)
+}
+
+/// `dσ/dx` of [`sigma`] given its value (zero where the clamp holds).
+#[inline]
+pub(crate) fn dsigma(s: f32) -> f32 {
+    if s > SIGMA_MIN as f32 {
+        s * (1.0 - s)
+    } else {
+        0.0
+    }
+}

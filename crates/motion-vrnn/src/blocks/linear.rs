@@ -1,0 +1,218 @@
+//! Dense layers over all rows at once, and the squared error.
+
+use super::kernels::{mm, rm, tr};
+use super::{fused, slice, tensor, with_values};
+use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor, D};
+use serde::{Deserialize, Serialize};
+
+/// The activation after a [`linear`] layer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Act {
+    /// None (a plain affine map).
+    None,
+    /// `max(0, ·)`.
+    Relu,
+}
+
+/// `act(x · Wᵀ + b)` over every row of `x` (`[…, in]` → `[…, out]`), with
+/// `w: [out, in]`, `b: [out]`.
+pub fn linear(x: &Tensor, w: &Tensor, b: &Tensor, act: Act) -> Result<Tensor> {
+    if fused(x) {
+        return x
+            .contiguous()?
+            .apply_op3(&w.contiguous()?, &b.contiguous()?, LinearOp { act });
+    }
+    let dims = x.dims().to_vec();
+    let rows = x.elem_count() / dims[dims.len() - 1];
+    let y = x
+        .reshape((rows, dims[dims.len() - 1]))?
+        .matmul(&w.t()?)?
+        .broadcast_add(b)?;
+    let y = match act {
+        Act::None => y,
+        Act::Relu => y.relu()?,
+    };
+    let mut out = dims;
+    let last = out.len() - 1;
+    out[last] = w.dim(0)?;
+    y.reshape(out)
+}
+
+/// The fused [`linear`].
+struct LinearOp {
+    act: Act,
+}
+
+/// `(rows, in, out)` of a linear layer, checked.
+fn sizes(x: &Shape, w: &Shape, b: &Shape) -> Result<(usize, usize, usize)> {
+    let (out, inp) = w.dims2()?;
+    let last = *x.dims().last().unwrap_or(&0);
+    if last != inp || b.dims() != [out] {
+        candle_core::bail!("linear: x {x:?}, w {w:?}, b {b:?} do not fit");
+    }
+    Ok((x.elem_count() / inp.max(1), inp, out))
+}
+
+impl CustomOp3 for LinearOp {
+    fn name(&self) -> &'static str {
+        "linear"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (x, w, b) = (
+            slice(s1, l1, "x")?,
+            slice(s2, l2, "w")?,
+            slice(s3, l3, "b")?,
+        );
+        let (rows, inp, out) = sizes(l1.shape(), l2.shape(), l3.shape())?;
+        let mut y = Vec::with_capacity(rows * out);
+        for _ in 0..rows {
+            y.extend_from_slice(b);
+        }
+        mm(
+            (rows, out, inp),
+            &mut y,
+            rm(0, out),
+            true,
+            x,
+            rm(0, inp),
+            w,
+            tr(0, inp),
+        );
+        if self.act == Act::Relu {
+            y.iter_mut().for_each(|v| *v = v.max(0.0));
+        }
+        let mut shape = l1.shape().dims().to_vec();
+        let last = shape.len() - 1;
+        shape[last] = out;
+        Ok((CpuStorage::F32(y), Shape::from(shape)))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        w: &Tensor,
+        b: &Tensor,
+        res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let (rows, inp, out) = sizes(x.shape(), w.shape(), b.shape())?;
+        // g = grad ⊙ act'(y)
+        let g = with_values(grad, |g| {
+            let mut g = g.to_vec();
+            if self.act == Act::Relu {
+                with_values(res, |y| {
+                    for (d, &v) in g.iter_mut().zip(y) {
+                        *d = if v > 0.0 { *d } else { 0.0 };
+                    }
+                    Ok(())
+                })?;
+            }
+            Ok(g)
+        })?;
+        let mut db = vec![0.0f32; out];
+        for r in g.chunks_exact(out.max(1)) {
+            for (d, v) in db.iter_mut().zip(r) {
+                *d += v;
+            }
+        }
+        let mut dw = vec![0.0f32; out * inp];
+        let mut dx = vec![0.0f32; rows * inp];
+        with_values(x, |xv| {
+            mm(
+                (out, inp, rows),
+                &mut dw,
+                rm(0, inp),
+                false,
+                &g,
+                tr(0, out),
+                xv,
+                rm(0, inp),
+            );
+            Ok(())
+        })?;
+        with_values(w, |wv| {
+            mm(
+                (rows, inp, out),
+                &mut dx,
+                rm(0, inp),
+                false,
+                &g,
+                rm(0, out),
+                wv,
+                rm(0, inp),
+            );
+            Ok(())
+        })?;
+        Ok((
+            Some(tensor(dx, x.dims(), x)?),
+            Some(tensor(dw, w.dims(), w)?),
+            Some(tensor(db, b.dims(), b)?),
+        ))
+    }
+}
+
+/// `Σ (a − b)²` over every element (a scalar).
+pub fn squared_error(a: &Tensor, b: &Tensor) -> Result<Tensor> {
+    if a.shape() != b.shape() {
+        candle_core::bail!("squared_error: {:?} vs {:?}", a.shape(), b.shape());
+    }
+    if fused(a) {
+        return a.contiguous()?.apply_op2(&b.contiguous()?, SquaredError);
+    }
+    (a - b)?.sqr()?.flatten_all()?.sum(D::Minus1)
+}
+
+/// The fused [`squared_error`].
+struct SquaredError;
+
+impl CustomOp2 for SquaredError {
+    fn name(&self) -> &'static str {
+        "squared-error"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (a, b) = (slice(s1, l1, "a")?, slice(s2, l2, "b")?);
+        let sum: f64 = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| {
+                let d = (x - y) as f64;
+                d * d
+            })
+            .sum();
+        Ok((CpuStorage::F32(vec![sum as f32]), Shape::from(())))
+    }
+
+    fn bwd(
+        &self,
+        a: &Tensor,
+        b: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let g = 2.0 * grad.to_scalar::<f32>()?;
+        let da = with_values(a, |av| {
+            with_values(b, |bv| {
+                Ok(av.iter().zip(bv).map(|(x, y)| g * (x - y)).collect())
+            })
+        })?;
+        let da = tensor(da, a.dims(), a)?;
+        let db = da.neg()?;
+        Ok((Some(da), Some(db)))
+    }
+}

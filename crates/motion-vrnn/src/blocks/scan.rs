@@ -1,0 +1,492 @@
+//! The recurrence: what cannot be batched over time.
+//!
+//! [`latent_lstm`] runs the VRNN's step loop over whole sequences with the
+//! inputs that do not depend on the recurrence precomputed for all rows:
+//!
+//! ```text
+//! e_t  = pre_t[..2Z] + W_e · h_{t−1}                 (posterior logits)
+//! μ_t  = e_t[..Z],  σ_t = sigmoid(e_t[Z..])  (clamped to [SIGMA_MIN, 1])
+//! z_t  = μ_t + σ_t ⊙ ε_t
+//! g_t  = pre_t[2Z..] + W_z · z_t + W_h · h_{t−1}     (LSTM gates i, f, g, o)
+//! c_t  = sigmoid(f) c_{t−1} + sigmoid(i) tanh(g),  h_t = sigmoid(o) tanh(c_t)
+//! ```
+//!
+//! with `h_{−1} = c_{−1} = 0`. Per row it returns `[h_{t−1} | μ_t | σ_t | z_t]`:
+//! the state *before* the step (what the prior and the decoder read) and the
+//! posterior sample.
+
+use super::kernels::{dsigma, mm, rm, sigma, sigmoid, tanh, tr};
+use super::{fused, slice, tensor, with_values};
+use candle_core::{CpuStorage, CustomOp3, Layout, Result, Shape, Tensor, D};
+use std::sync::Mutex;
+
+/// Sizes of the recurrence.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ScanDims {
+    /// LSTM hidden size `H`.
+    pub hidden: usize,
+    /// Latent size `Z`.
+    pub latent: usize,
+}
+
+impl ScanDims {
+    /// Width of `pre`: `2Z + 4H`.
+    pub fn pre(&self) -> usize {
+        2 * self.latent + 4 * self.hidden
+    }
+    /// Width of the output: `H + 3Z`.
+    pub fn out(&self) -> usize {
+        self.hidden + 3 * self.latent
+    }
+    /// Length of the flat recurrent weights `[W_e (2Z×H) | W_z (4H×Z) | W_h (4H×H)]`.
+    pub fn weights(&self) -> usize {
+        let (h, z) = (self.hidden, self.latent);
+        2 * z * h + 4 * h * z + 4 * h * h
+    }
+}
+
+/// The VRNN recurrence over whole sequences (see the module docs).
+/// `pre: [B, T, 2Z + 4H]`, `eps: [B, T, Z]`, `w`: the flat recurrent weights
+/// of [`ScanDims::weights`] (row-major, rows of `W_e` are μ then σ, gates in
+/// the order i, f, g, o). Returns `[B, T, H + 3Z]`.
+pub fn latent_lstm(pre: &Tensor, eps: &Tensor, w: &Tensor, dims: ScanDims) -> Result<Tensor> {
+    let (b, t, p) = pre.dims3()?;
+    if p != dims.pre() || eps.dims() != [b, t, dims.latent] || w.dims() != [dims.weights()] {
+        candle_core::bail!(
+            "latent_lstm: pre {:?}, eps {:?}, w {:?} do not fit {dims:?}",
+            pre.shape(),
+            eps.shape(),
+            w.shape()
+        );
+    }
+    if fused(pre) {
+        let op = ScanOp {
+            dims,
+            cache: Mutex::new(None),
+            zeros: vec![0.0; dims.hidden],
+        };
+        return pre
+            .contiguous()?
+            .apply_op3(&eps.contiguous()?, &w.contiguous()?, op);
+    }
+    reference(pre, eps, w, dims)
+}
+
+/// [`latent_lstm`] in candle ops.
+fn reference(pre: &Tensor, eps: &Tensor, w: &Tensor, d: ScanDims) -> Result<Tensor> {
+    let (b, t, _) = pre.dims3()?;
+    let (h, z) = (d.hidden, d.latent);
+    let we = w.narrow(0, 0, 2 * z * h)?.reshape((2 * z, h))?;
+    let wz = w.narrow(0, 2 * z * h, 4 * h * z)?.reshape((4 * h, z))?;
+    let wh = w
+        .narrow(0, 2 * z * h + 4 * h * z, 4 * h * h)?
+        .reshape((4 * h, h))?;
+    let mut hs = Tensor::zeros((b, h), pre.dtype(), pre.device())?;
+    let mut cs = hs.clone();
+    let mut rows = Vec::with_capacity(t);
+    for step in 0..t {
+        let p = pre.narrow(1, step, 1)?.squeeze(1)?;
+        let e = (p.narrow(1, 0, 2 * z)? + hs.matmul(&we.t()?)?)?;
+        let mu = e.narrow(1, 0, z)?;
+        let sg =
+            candle_nn::ops::sigmoid(&e.narrow(1, z, z)?)?.clamp(crate::model::SIGMA_MIN, 1.0)?;
+        let zz = (&mu + (&sg * eps.narrow(1, step, 1)?.squeeze(1)?)?)?;
+        let g = ((p.narrow(1, 2 * z, 4 * h)? + zz.matmul(&wz.t()?)?)? + hs.matmul(&wh.t()?)?)?;
+        let (hn, cn) = cell_reference(&g, &cs, h)?;
+        rows.push(Tensor::cat(&[&hs, &mu, &sg, &zz], D::Minus1)?);
+        hs = hn;
+        cs = cn;
+    }
+    Tensor::stack(&rows, 1)
+}
+
+/// One LSTM step in candle ops: gate pre-activations `[B, 4H]` (i, f, g, o)
+/// and the cell `[B, H]` → `(h, c)`.
+fn cell_reference(g: &Tensor, c: &Tensor, h: usize) -> Result<(Tensor, Tensor)> {
+    let i = candle_nn::ops::sigmoid(&g.narrow(1, 0, h)?)?;
+    let f = candle_nn::ops::sigmoid(&g.narrow(1, h, h)?)?;
+    let gg = g.narrow(1, 2 * h, h)?.tanh()?;
+    let o = candle_nn::ops::sigmoid(&g.narrow(1, 3 * h, h)?)?;
+    let cn = ((f * c)? + (i * gg)?)?;
+    Ok(((o * cn.tanh()?)?, cn))
+}
+
+/// One LSTM step (free-running generation): gate pre-activations `[B, 4H]`
+/// in the order i, f, g, o and the cell `[B, H]` → `(h, c)`. No backward.
+pub fn lstm_cell(gates: &Tensor, c: &Tensor) -> Result<(Tensor, Tensor)> {
+    let (b, h) = c.dims2()?;
+    if gates.dims() != [b, 4 * h] {
+        candle_core::bail!("lstm_cell: gates {:?}, cell {:?}", gates.shape(), c.shape());
+    }
+    if !fused(gates) {
+        return cell_reference(gates, c, h);
+    }
+    let (mut hv, mut cv) = (vec![0.0f32; b * h], vec![0.0f32; b * h]);
+    with_values(gates, |g| {
+        with_values(c, |c0| {
+            for s in 0..b {
+                let mut gr = g[s * 4 * h..(s + 1) * 4 * h].to_vec();
+                activate(&mut gr, h);
+                for k in 0..h {
+                    let (cn, tc) = cell(&gr, c0[s * h + k], k, h);
+                    cv[s * h + k] = cn;
+                    hv[s * h + k] = gr[3 * h + k] * tc;
+                }
+            }
+            Ok(())
+        })
+    })?;
+    Ok((tensor(hv, &[b, h], c)?, tensor(cv, &[b, h], c)?))
+}
+
+/// Gate activations in place: sigmoid for i, f, o; tanh for g.
+#[inline]
+fn activate(g: &mut [f32], h: usize) {
+    let (ifg, o) = g.split_at_mut(3 * h);
+    let (i_f, gg) = ifg.split_at_mut(2 * h);
+    i_f.iter_mut().for_each(|v| *v = sigmoid(*v));
+    gg.iter_mut().for_each(|v| *v = tanh(*v));
+    o.iter_mut().for_each(|v| *v = sigmoid(*v));
+}
+
+/// A row of the cell: `c = f·c_prev + i·g`, `tc = tanh c` from activated
+/// gates `[i | f | g | o]`.
+#[inline]
+fn cell_rows(g: &[f32], c_prev: &[f32], c: &mut [f32], tc: &mut [f32], h: usize) {
+    let (gi, rest) = g.split_at(h);
+    let (gf, rest) = rest.split_at(h);
+    let gg = &rest[..h];
+    for ((((cv, t), &p), (&i, &f)), &gv) in c
+        .iter_mut()
+        .zip(tc.iter_mut())
+        .zip(&c_prev[..h])
+        .zip(gi.iter().zip(gf))
+        .zip(gg)
+    {
+        *cv = f * p + i * gv;
+        *t = tanh(*cv);
+    }
+}
+
+/// Unit `k` of the cell: `(c, tanh c)` from activated gates and `c_{t−1}`.
+#[inline]
+fn cell(g: &[f32], c_prev: f32, k: usize, h: usize) -> (f32, f32) {
+    let c = g[h + k] * c_prev + g[k] * g[2 * h + k];
+    (c, tanh(c))
+}
+
+/// What the forward pass keeps for the backward pass.
+struct Cache {
+    /// Per row: `[z | h_{t−1}]`.
+    u: Vec<f32>,
+    /// Per row: `[μ | σ]`.
+    e: Vec<f32>,
+    /// Per row: activated gates.
+    g: Vec<f32>,
+    /// Per row: `c_t` and `tanh c_t`.
+    c: Vec<f32>,
+    tc: Vec<f32>,
+}
+
+/// The fused [`latent_lstm`].
+struct ScanOp {
+    dims: ScanDims,
+    cache: Mutex<Option<Cache>>,
+    /// `H` zeros (the cell before the first step).
+    zeros: Vec<f32>,
+}
+
+/// `[W_z | W_h]` as one `[4H, Z + H]` matrix (applied to `[z | h]`).
+fn pack_zh(w: &[f32], d: ScanDims) -> Vec<f32> {
+    let (h, z) = (d.hidden, d.latent);
+    let (wz, wh) = (
+        &w[2 * z * h..2 * z * h + 4 * h * z],
+        &w[2 * z * h + 4 * h * z..],
+    );
+    let zh = z + h;
+    let mut out = vec![0.0f32; 4 * h * zh];
+    for r in 0..4 * h {
+        out[r * zh..r * zh + z].copy_from_slice(&wz[r * z..(r + 1) * z]);
+        out[r * zh + z..(r + 1) * zh].copy_from_slice(&wh[r * h..(r + 1) * h]);
+    }
+    out
+}
+
+impl ScanOp {
+    fn forward(
+        &self,
+        pre: &[f32],
+        eps: &[f32],
+        w: &[f32],
+        b: usize,
+        tt: usize,
+    ) -> (Vec<f32>, Cache) {
+        let ScanDims {
+            hidden: h,
+            latent: z,
+        } = self.dims;
+        let (p, o, zh, z2, h4) = (self.dims.pre(), self.dims.out(), z + h, 2 * z, 4 * h);
+        let n = b * tt;
+        let wzh = pack_zh(w, self.dims);
+        let mut u = vec![0.0f32; n * zh];
+        let mut e = vec![0.0f32; n * z2];
+        let mut g = vec![0.0f32; n * h4];
+        let mut c = vec![0.0f32; n * h];
+        let mut tc = vec![0.0f32; n * h];
+        for r in 0..n {
+            e[r * z2..(r + 1) * z2].copy_from_slice(&pre[r * p..r * p + z2]);
+            g[r * h4..(r + 1) * h4].copy_from_slice(&pre[r * p + z2..(r + 1) * p]);
+        }
+        let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
+        for t in 0..tt {
+            if t > 0 {
+                // e += h · W_eᵀ
+                mm(
+                    (b, z2, h),
+                    &mut e,
+                    rm(t * z2, se),
+                    true,
+                    &u,
+                    rm(t * zh + z, su),
+                    w,
+                    tr(0, h),
+                );
+            }
+            for s in 0..b {
+                let r = s * tt + t;
+                let (mu, sg) = e[r * z2..(r + 1) * z2].split_at_mut(z);
+                sg.iter_mut().for_each(|v| *v = sigma(*v));
+                let ur = &mut u[r * zh..r * zh + z];
+                let ep = &eps[r * z..(r + 1) * z];
+                for (((o, m), sv), ev) in ur.iter_mut().zip(&*mu).zip(&*sg).zip(ep) {
+                    *o = m + sv * ev;
+                }
+            }
+            // g += [z | h] · [W_z | W_h]ᵀ
+            mm(
+                (b, h4, zh),
+                &mut g,
+                rm(t * h4, sg),
+                true,
+                &u,
+                rm(t * zh, su),
+                &wzh,
+                tr(0, zh),
+            );
+            for s in 0..b {
+                let r = s * tt + t;
+                let gr = &mut g[r * h4..(r + 1) * h4];
+                activate(gr, h);
+                let (before, now) = c.split_at_mut(r * h);
+                let c_prev = if t > 0 {
+                    &before[(r - 1) * h..]
+                } else {
+                    &self.zeros[..h]
+                };
+                let (cn, tn) = (&mut now[..h], &mut tc[r * h..(r + 1) * h]);
+                cell_rows(gr, c_prev, cn, tn, h);
+                if t + 1 < tt {
+                    let hn = &mut u[(r + 1) * zh + z..(r + 2) * zh];
+                    for ((o, og), tv) in hn.iter_mut().zip(&gr[3 * h..]).zip(&*tn) {
+                        *o = og * tv;
+                    }
+                }
+            }
+        }
+        let mut out = vec![0.0f32; n * o];
+        for r in 0..n {
+            let row = &mut out[r * o..(r + 1) * o];
+            row[..h].copy_from_slice(&u[r * zh + z..(r + 1) * zh]);
+            row[h..h + z2].copy_from_slice(&e[r * z2..(r + 1) * z2]);
+            row[h + z2..].copy_from_slice(&u[r * zh..r * zh + z]);
+        }
+        (out, Cache { u, e, g, c, tc })
+    }
+
+    /// Gradients of `pre` and `w` given the output's gradient `dout`.
+    #[allow(clippy::too_many_arguments)]
+    fn backward(
+        &self,
+        cache: &Cache,
+        dout: &[f32],
+        eps: &[f32],
+        w: &[f32],
+        b: usize,
+        tt: usize,
+    ) -> (Vec<f32>, Vec<f32>) {
+        let ScanDims {
+            hidden: h,
+            latent: z,
+        } = self.dims;
+        let (p, o, zh, z2, h4) = (self.dims.pre(), self.dims.out(), z + h, 2 * z, 4 * h);
+        let n = b * tt;
+        let wzh = pack_zh(w, self.dims);
+        let Cache { u, e, g, c, tc } = cache;
+        // dU holds, per row, d[z | h_{t−1}]; starts with the output's part.
+        let mut du = vec![0.0f32; n * zh];
+        for r in 0..n {
+            du[r * zh..r * zh + z].copy_from_slice(&dout[r * o + h + z2..(r + 1) * o]);
+            du[r * zh + z..(r + 1) * zh].copy_from_slice(&dout[r * o..r * o + h]);
+        }
+        let mut de = vec![0.0f32; n * z2];
+        let mut dg = vec![0.0f32; n * h4];
+        let mut dc = vec![0.0f32; b * h];
+        let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
+        for t in (0..tt).rev() {
+            for s in 0..b {
+                let r = s * tt + t;
+                let gr = &g[r * h4..(r + 1) * h4];
+                let (gi, rest) = gr.split_at(h);
+                let (gf, rest) = rest.split_at(h);
+                let (gg, go) = (&rest[..h], &rest[h..2 * h]);
+                let (di, rest) = dg[r * h4..(r + 1) * h4].split_at_mut(h);
+                let (df, rest) = rest.split_at_mut(h);
+                let (dgg, dgo) = rest.split_at_mut(h);
+                let dgo = &mut dgo[..h];
+                // Gradient of h_t: what step t + 1 saw as h_{t−1}.
+                let dh = if t + 1 < tt {
+                    &du[(r + 1) * zh + z..(r + 2) * zh]
+                } else {
+                    &self.zeros[..h]
+                };
+                let c_prev = if t > 0 {
+                    &c[(r - 1) * h..r * h]
+                } else {
+                    &self.zeros[..h]
+                };
+                let tcr = &tc[r * h..(r + 1) * h];
+                let dcr = &mut dc[s * h..(s + 1) * h];
+                for k in 0..h {
+                    let (ig, fg, gv, og) = (gi[k], gf[k], gg[k], go[k]);
+                    let tcv = tcr[k];
+                    let dcv = dcr[k] + dh[k] * og * (1.0 - tcv * tcv);
+                    dcr[k] = dcv * fg;
+                    di[k] = dcv * gv * ig * (1.0 - ig);
+                    df[k] = dcv * c_prev[k] * fg * (1.0 - fg);
+                    dgg[k] = dcv * ig * (1.0 - gv * gv);
+                    dgo[k] = dh[k] * tcv * og * (1.0 - og);
+                }
+            }
+            // d[z | h] += dG · [W_z | W_h]
+            mm(
+                (b, zh, h4),
+                &mut du,
+                rm(t * zh, su),
+                true,
+                &dg,
+                rm(t * h4, sg),
+                &wzh,
+                rm(0, zh),
+            );
+            for s in 0..b {
+                let r = s * tt + t;
+                for k in 0..z {
+                    let dz = du[r * zh + k];
+                    let sv = e[r * z2 + z + k];
+                    de[r * z2 + k] = dout[r * o + h + k] + dz;
+                    de[r * z2 + z + k] =
+                        (dout[r * o + h + z + k] + dz * eps[r * z + k]) * dsigma(sv);
+                }
+            }
+            if t > 0 {
+                // dh_{t−1} += dE · W_e
+                mm(
+                    (b, h, z2),
+                    &mut du,
+                    rm(t * zh + z, su),
+                    true,
+                    &de,
+                    rm(t * z2, se),
+                    w,
+                    rm(0, h),
+                );
+            }
+        }
+        // Weights, batched over all rows.
+        let mut dw = vec![0.0f32; self.dims.weights()];
+        mm(
+            (z2, h, n),
+            &mut dw,
+            rm(0, h),
+            false,
+            &de,
+            tr(0, z2),
+            u,
+            rm(z, zh),
+        );
+        let mut dwzh = vec![0.0f32; h4 * zh];
+        mm(
+            (h4, zh, n),
+            &mut dwzh,
+            rm(0, zh),
+            false,
+            &dg,
+            tr(0, h4),
+            u,
+            rm(0, zh),
+        );
+        let (oz, oh) = (2 * z * h, 2 * z * h + 4 * h * z);
+        for r in 0..h4 {
+            dw[oz + r * z..oz + (r + 1) * z].copy_from_slice(&dwzh[r * zh..r * zh + z]);
+            dw[oh + r * h..oh + (r + 1) * h].copy_from_slice(&dwzh[r * zh + z..(r + 1) * zh]);
+        }
+        let mut dpre = vec![0.0f32; n * p];
+        for r in 0..n {
+            dpre[r * p..r * p + z2].copy_from_slice(&de[r * z2..(r + 1) * z2]);
+            dpre[r * p + z2..(r + 1) * p].copy_from_slice(&dg[r * h4..(r + 1) * h4]);
+        }
+        (dpre, dw)
+    }
+}
+
+impl CustomOp3 for ScanOp {
+    fn name(&self) -> &'static str {
+        "latent-lstm"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (pre, eps, w) = (
+            slice(s1, l1, "pre")?,
+            slice(s2, l2, "eps")?,
+            slice(s3, l3, "w")?,
+        );
+        let (b, t, _) = l1.shape().dims3()?;
+        let (out, cache) = self.forward(pre, eps, w, b, t);
+        *self.cache.lock().unwrap_or_else(|p| p.into_inner()) = Some(cache);
+        Ok((CpuStorage::F32(out), Shape::from((b, t, self.dims.out()))))
+    }
+
+    fn bwd(
+        &self,
+        pre: &Tensor,
+        eps: &Tensor,
+        w: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let (b, t, _) = pre.dims3()?;
+        let cached = self.cache.lock().unwrap_or_else(|p| p.into_inner()).take();
+        let (dpre, dw) = with_values(eps, |ev| {
+            with_values(w, |wv| {
+                let cache = match cached {
+                    Some(c) => c,
+                    None => with_values(pre, |pv| Ok(self.forward(pv, ev, wv, b, t).1))?,
+                };
+                with_values(grad, |g| Ok(self.backward(&cache, g, ev, wv, b, t)))
+            })
+        })?;
+        Ok((
+            Some(tensor(dpre, pre.dims(), pre)?),
+            None,
+            Some(tensor(dw, w.dims(), w)?),
+        ))
+    }
+}

@@ -1,0 +1,180 @@
+//! Forward kinematics over the 19-joint tree of `docs/features.md`: joint
+//! positions from bone directions and bone lengths, so a decoded pose keeps
+//! its bones by construction.
+//!
+//! Per row, with `d_j` the raw direction of bone `j` (joint `j` from its
+//! parent, `j = 1 … 18`) and `L_j` its length:
+//!
+//! ```text
+//! p_0 = (0, y, 0)                       (Hips above the local origin)
+//! p_j = p_parent(j) + L_j · d_j / ‖d_j‖  (‖d‖ = √(d·d + 1e-8))
+//! ```
+//!
+//! Parents precede their children in the feature order, so one pass from
+//! the root places every joint and one pass back from the leaves gives the
+//! gradients.
+
+use super::{fused, slice, tensor, with_values};
+use candle_core::{CpuStorage, CustomOp3, Layout, Result, Shape, Tensor, D};
+use mocap_ingest::skeleton::{JOINT_PARENTS, NUM_JOINTS};
+
+/// Bones of the tree (every joint but the root).
+pub const BONES: usize = NUM_JOINTS - 1;
+
+/// Added to `‖d‖²` before the square root (keeps a zero direction finite).
+const EPS: f32 = 1e-8;
+
+/// Parent of joint `j ≥ 1`.
+fn parent(j: usize) -> usize {
+    JOINT_PARENTS[j].unwrap_or(0)
+}
+
+/// Joint positions `[…, 54]` (joints 1 … 18, xyz) from the root height
+/// `y: […, 1]`, raw bone directions `dirs: […, 54]` and bone lengths
+/// `lengths: […, 18]`. The lengths get no gradient (they are data).
+pub fn forward_kinematics(y: &Tensor, dirs: &Tensor, lengths: &Tensor) -> Result<Tensor> {
+    let rows = dirs.elem_count() / (3 * BONES);
+    if dirs.dims().last() != Some(&(3 * BONES))
+        || y.elem_count() != rows
+        || lengths.elem_count() != rows * BONES
+    {
+        candle_core::bail!(
+            "forward_kinematics: y {:?}, dirs {:?}, lengths {:?}",
+            y.shape(),
+            dirs.shape(),
+            lengths.shape()
+        );
+    }
+    if fused(dirs) {
+        return dirs
+            .contiguous()?
+            .apply_op3(&y.contiguous()?, &lengths.contiguous()?, FkOp);
+    }
+    reference(y, dirs, lengths)
+}
+
+/// [`forward_kinematics`] in candle ops.
+fn reference(y: &Tensor, dirs: &Tensor, lengths: &Tensor) -> Result<Tensor> {
+    let zero = y.zeros_like()?;
+    let mut p = vec![Tensor::cat(&[&zero, y, &zero], D::Minus1)?];
+    for j in 1..NUM_JOINTS {
+        let d = dirs.narrow(D::Minus1, 3 * (j - 1), 3)?;
+        let n = (d.sqr()?.sum_keepdim(D::Minus1)? + EPS as f64)?.sqrt()?;
+        let l = lengths.narrow(D::Minus1, j - 1, 1)?.detach();
+        let bone = d.broadcast_div(&n)?.broadcast_mul(&l)?;
+        p.push((&p[parent(j)] + bone)?);
+    }
+    Tensor::cat(&p[1..], D::Minus1)
+}
+
+/// The fused [`forward_kinematics`]: inputs `(dirs, y, lengths)`.
+struct FkOp;
+
+impl CustomOp3 for FkOp {
+    fn name(&self) -> &'static str {
+        "forward-kinematics"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (d, y, len) = (
+            slice(s1, l1, "dirs")?,
+            slice(s2, l2, "y")?,
+            slice(s3, l3, "lengths")?,
+        );
+        let rows = y.len();
+        let mut out = vec![0.0f32; rows * 3 * BONES];
+        for r in 0..rows {
+            let mut p = [[0.0f32; 3]; NUM_JOINTS];
+            p[0][1] = y[r];
+            for j in 1..NUM_JOINTS {
+                let dj = &d[(r * BONES + j - 1) * 3..][..3];
+                let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
+                let s = len[r * BONES + j - 1] / n;
+                let q = p[parent(j)];
+                p[j] = [q[0] + s * dj[0], q[1] + s * dj[1], q[2] + s * dj[2]];
+                out[(r * BONES + j - 1) * 3..][..3].copy_from_slice(&p[j]);
+            }
+        }
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        dirs: &Tensor,
+        y: &Tensor,
+        lengths: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let rows = y.elem_count();
+        let mut dd = vec![0.0f32; rows * 3 * BONES];
+        let mut dy = vec![0.0f32; rows];
+        with_values(dirs, |d| {
+            with_values(lengths, |len| {
+                with_values(grad, |g| {
+                    for r in 0..rows {
+                        // Gradient of each joint's position, children added in.
+                        let mut gp = [[0.0f32; 3]; NUM_JOINTS];
+                        for j in 1..NUM_JOINTS {
+                            gp[j].copy_from_slice(&g[(r * BONES + j - 1) * 3..][..3]);
+                        }
+                        for j in (1..NUM_JOINTS).rev() {
+                            let gj = gp[j];
+                            let q = &mut gp[parent(j)];
+                            for k in 0..3 {
+                                q[k] += gj[k];
+                            }
+                            let dj = &d[(r * BONES + j - 1) * 3..][..3];
+                            let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
+                            let l = len[r * BONES + j - 1];
+                            // ∂(L d/n)/∂d = L/n (I − d dᵀ/n²)
+                            let dot = (gj[0] * dj[0] + gj[1] * dj[1] + gj[2] * dj[2]) / (n * n);
+                            let out = &mut dd[(r * BONES + j - 1) * 3..][..3];
+                            for k in 0..3 {
+                                out[k] = l / n * (gj[k] - dj[k] * dot);
+                            }
+                        }
+                        dy[r] = gp[0][1];
+                    }
+                    Ok(())
+                })
+            })
+        })?;
+        Ok((
+            Some(tensor(dd, dirs.dims(), dirs)?),
+            Some(tensor(dy, y.dims(), y)?),
+            None,
+        ))
+    }
+}
+
+/// Bone lengths `[…, 18]` of joint positions `[…, 54]` with root height
+/// `y: […, 1]` (no gradient: a measurement of data).
+pub fn bone_lengths(y: &[f32], joints: &[f32]) -> Vec<f32> {
+    let rows = y.len();
+    let mut out = vec![0.0f32; rows * BONES];
+    for r in 0..rows {
+        let at = |j: usize| -> [f32; 3] {
+            if j == 0 {
+                [0.0, y[r], 0.0]
+            } else {
+                let p = &joints[(r * BONES + j - 1) * 3..][..3];
+                [p[0], p[1], p[2]]
+            }
+        };
+        for j in 1..NUM_JOINTS {
+            let (a, b) = (at(j), at(parent(j)));
+            let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+            out[r * BONES + j - 1] = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        }
+    }
+    out
+}

@@ -1,0 +1,225 @@
+//! Each fused block against candle's autograd of its reference (values and
+//! gradients) and against central finite differences of the fused forward.
+
+use candle_core::{Device, Tensor, Var};
+use motion_vrnn::blocks::scan::ScanDims;
+use motion_vrnn::blocks::{self, filter, skeleton, Act};
+use motion_vrnn::rng::Rng;
+
+fn randn(seed: u64, shape: &[usize], scale: f64) -> Var {
+    let n = shape.iter().product();
+    let v: Vec<f32> = Rng::new(seed, 3)
+        .normals(n)
+        .iter()
+        .map(|x| (*x as f64 * scale) as f32)
+        .collect();
+    Var::from_tensor(&Tensor::from_vec(v, shape, &Device::Cpu).unwrap()).unwrap()
+}
+
+fn values(t: &Tensor) -> Vec<f32> {
+    t.flatten_all().unwrap().to_vec1::<f32>().unwrap()
+}
+
+fn rel(a: &[f32], b: &[f32]) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+    let den: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
+    (num / den.max(1e-30)).sqrt()
+}
+
+/// A scalar of a block's output: `Σ out ⊙ w` with fixed random `w`, so every
+/// output element's gradient is exercised.
+fn project(out: &Tensor) -> Tensor {
+    let w = randn(99, out.dims(), 1.0);
+    (out * w.as_tensor()).unwrap().sum_all().unwrap()
+}
+
+/// Fused vs reference: the scalar and the gradient of every input in
+/// `check` agree to `tol` (relative); then central differences of the fused
+/// scalar on `fd` coordinates of each checked input agree with the fused
+/// gradient to 2 % (or 1e-3 absolute).
+fn check(
+    name: &str,
+    inputs: &[Var],
+    check: &[usize],
+    tol: f64,
+    fd: usize,
+    f: impl Fn(&[Tensor]) -> Tensor,
+) {
+    let ts: Vec<Tensor> = inputs.iter().map(|v| v.as_tensor().clone()).collect();
+    let fused = project(&f(&ts));
+    let reference = blocks::reference(|| project(&f(&ts)));
+    let (a, r) = (
+        fused.to_scalar::<f32>().unwrap(),
+        reference.to_scalar::<f32>().unwrap(),
+    );
+    assert!(
+        ((a - r) as f64).abs() <= tol * (r.abs() as f64).max(1.0),
+        "{name}: value {a} vs {r}"
+    );
+    let gf = fused.backward().unwrap();
+    let gr = reference.backward().unwrap();
+    for &i in check {
+        let (x, y) = (
+            values(gf.get(&inputs[i]).expect("fused gradient")),
+            values(gr.get(&inputs[i]).expect("reference gradient")),
+        );
+        let e = rel(&x, &y);
+        assert!(
+            e < tol,
+            "{name}: input {i} gradient off by {e:e} (relative)"
+        );
+        // Finite differences on a few coordinates.
+        let base = values(inputs[i].as_tensor());
+        let mut rng = Rng::new(7 + i as u64, 5);
+        for _ in 0..fd {
+            let k = (rng.uniform() * base.len() as f64) as usize % base.len();
+            let h = 1e-2f32 * base[k].abs().max(1.0);
+            let at = |d: f32| {
+                let mut v = base.clone();
+                v[k] += d;
+                let mut ts = ts.clone();
+                ts[i] = Tensor::from_vec(v, inputs[i].shape(), &Device::Cpu).unwrap();
+                project(&f(&ts)).to_scalar::<f32>().unwrap() as f64
+            };
+            let num = (at(h) - at(-h)) / (2.0 * h as f64);
+            let g = x[k] as f64;
+            assert!(
+                (num - g).abs() <= 0.02 * g.abs().max(num.abs()) + 1e-3,
+                "{name}: input {i}[{k}]: finite difference {num} vs gradient {g}"
+            );
+        }
+    }
+}
+
+#[test]
+fn linear_block() {
+    let (x, w, b) = (
+        randn(1, &[3, 5, 7], 1.0),
+        randn(2, &[4, 7], 0.5),
+        randn(3, &[4], 0.5),
+    );
+    check(
+        "linear",
+        &[x.clone(), w.clone(), b.clone()],
+        &[0, 1, 2],
+        1e-5,
+        6,
+        |t| blocks::linear(&t[0], &t[1], &t[2], Act::None).unwrap(),
+    );
+    // ReLU: against autograd only (its kinks defeat finite differences).
+    check("linear relu", &[x, w, b], &[0, 1, 2], 1e-5, 0, |t| {
+        blocks::linear(&t[0], &t[1], &t[2], Act::Relu).unwrap()
+    });
+}
+
+#[test]
+fn squared_error_block() {
+    let (a, b) = (randn(4, &[2, 3, 5], 1.0), randn(5, &[2, 3, 5], 1.0));
+    check("squared error", &[a, b], &[0, 1], 1e-5, 6, |t| {
+        blocks::squared_error(&t[0], &t[1]).unwrap()
+    });
+}
+
+#[test]
+fn gaussian_kl_block() {
+    let (b, t, z) = (3, 6, 4);
+    // q = [μ | σ] with σ in (0.2, 1).
+    let mu = randn(6, &[b, t, z], 1.0);
+    let s: Vec<f32> = Rng::new(7, 1)
+        .normals(b * t * z)
+        .iter()
+        .map(|v| 0.6 + 0.3 * v.tanh())
+        .collect();
+    let q = Tensor::cat(
+        &[
+            mu.as_tensor(),
+            &Tensor::from_vec(s, (b, t, z), &Device::Cpu).unwrap(),
+        ],
+        2,
+    )
+    .unwrap();
+    let q = Var::from_tensor(&q).unwrap();
+    let p = randn(8, &[b, t, 2 * z], 1.0);
+    check("gaussian kl", &[q, p], &[0, 1], 1e-5, 8, |t| {
+        blocks::gaussian_kl(&t[0], &t[1]).unwrap()
+    });
+}
+
+#[test]
+fn latent_lstm_block() {
+    let dims = ScanDims {
+        hidden: 5,
+        latent: 3,
+    };
+    let (b, t) = (4, 7);
+    let pre = randn(9, &[b, t, dims.pre()], 1.0);
+    let eps = randn(10, &[b, t, dims.latent], 1.0);
+    let w = randn(11, &[dims.weights()], 0.4);
+    check("latent lstm", &[pre, eps, w], &[0, 2], 1e-5, 10, |x| {
+        blocks::latent_lstm(&x[0], &x[1], &x[2], dims).unwrap()
+    });
+}
+
+#[test]
+fn lstm_cell_matches_the_reference() {
+    let (g, c) = (randn(12, &[3, 20], 1.0), randn(13, &[3, 5], 1.0));
+    let (h1, c1) = blocks::lstm_cell(g.as_tensor(), c.as_tensor()).unwrap();
+    let (h2, c2) = blocks::reference(|| blocks::lstm_cell(g.as_tensor(), c.as_tensor()).unwrap());
+    assert!(rel(&values(&h1), &values(&h2)) < 1e-6);
+    assert!(rel(&values(&c1), &values(&c2)) < 1e-6);
+}
+
+#[test]
+fn smooth_block() {
+    let x = randn(14, &[2, 9, 3], 1.0);
+    check("smooth", &[x], &[0], 1e-5, 6, |t| {
+        filter::smooth(&t[0], 0.7).unwrap()
+    });
+    // By hand: ρ = 0.6, gain 0.8; x = (1, 0, 0) → (1, 0.6, 0.36).
+    let x = Tensor::new(&[[[1f32], [0.0], [0.0]]], &Device::Cpu).unwrap();
+    let y = values(&filter::smooth(&x, 0.6).unwrap());
+    assert!(rel(&y, &[1.0, 0.6, 0.36]) < 1e-6, "{y:?}");
+}
+
+#[test]
+fn forward_kinematics_block() {
+    let n = 6;
+    let y = randn(15, &[n, 1], 1.0);
+    let d = randn(16, &[n, 3 * skeleton::BONES], 1.0);
+    let l: Vec<f32> = (0..n * skeleton::BONES)
+        .map(|i| 1.0 + (i % 7) as f32)
+        .collect();
+    let l = Var::from_tensor(&Tensor::from_vec(l, (n, skeleton::BONES), &Device::Cpu).unwrap())
+        .unwrap();
+    check("forward kinematics", &[y, d, l], &[0, 1], 1e-5, 10, |t| {
+        skeleton::forward_kinematics(&t[0], &t[1], &t[2]).unwrap()
+    });
+}
+
+#[test]
+fn forward_kinematics_by_hand() {
+    // Every bone along +x with length 2 except the left leg chain: joint j's
+    // position is the sum of its chain. LeftUpLeg (1) from Hips at (0, 5, 0).
+    let b = skeleton::BONES;
+    let mut d = vec![0f32; 3 * b];
+    for j in 0..b {
+        d[3 * j] = 3.0; // any length: directions are normalised
+    }
+    let y = Tensor::new(&[[5f32]], &Device::Cpu).unwrap();
+    let d = Tensor::from_vec(d, (1, 3 * b), &Device::Cpu).unwrap();
+    let l = Tensor::from_vec(vec![2f32; b], (1, b), &Device::Cpu).unwrap();
+    let p = values(&skeleton::forward_kinematics(&y, &d, &l).unwrap());
+    // LeftToeBase (joint 4): 4 bones from the hips → x = 8.
+    assert!((p[3 * 3] - 8.0).abs() < 1e-5 && (p[3 * 3 + 1] - 5.0).abs() < 1e-6);
+    // Head (joint 12): Spine, Spine1, Neck1, Head → x = 8.
+    assert!((p[3 * 11] - 8.0).abs() < 1e-5);
+    // RightHand (joint 18): Spine, Spine1, RightArm, ForeArm, Hand → x = 10.
+    assert!((p[3 * 17] - 10.0).abs() < 1e-5);
+    // The lengths measured back.
+    let yv = [5f32];
+    let lengths = skeleton::bone_lengths(&yv, &p);
+    assert!(
+        lengths.iter().all(|v| (v - 2.0).abs() < 1e-5),
+        "{lengths:?}"
+    );
+}

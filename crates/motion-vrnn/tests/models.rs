@@ -1,0 +1,243 @@
+//! Every model: the fused path against autograd of the same definition, the
+//! paper model against the kernel it replaced, thread-count independence,
+//! and what the skeleton part promises.
+
+use candle_core::{Device, Tensor, Var};
+use motion_vrnn::blocks;
+use motion_vrnn::model::MODELS;
+use motion_vrnn::rng::Rng;
+use motion_vrnn::train::{init_model, named_vars, noise, sharded, Trained};
+use motion_vrnn::{Config, MotionModel};
+
+fn rel(a: &[f32], b: &[f32]) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+    let den: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
+    (num / den.max(1e-30)).sqrt()
+}
+
+fn batch(b: usize, t: usize, seed: u64) -> (Tensor, Tensor) {
+    let x = Rng::new(seed, 1).normals(b * t * 58);
+    let x = Tensor::from_vec(x, (b, t, 58), &Device::Cpu).unwrap();
+    (x, noise(seed, 7, t, b, 8, &Device::Cpu).unwrap())
+}
+
+/// The named model with a body fitted to synthetic statistics: feature
+/// means 0 except the root height (15) and std 2, so joints sit where the
+/// random normalised data puts them.
+fn model(name: &str, seed: u64) -> Trained {
+    let mut c = Config::named(name).unwrap();
+    let mut mean = vec![0.0; 58];
+    mean[0] = 15.0;
+    let std = vec![2.0; 58];
+    let (x, _) = batch(4, 8, 100);
+    c.fit_to(
+        &mean,
+        &std,
+        &x.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+    );
+    init_model(&c, seed, &Device::Cpu).unwrap()
+}
+
+fn sorted_vars(t: &Trained) -> Vec<(String, Var)> {
+    let mut v = named_vars(&t.varmap);
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}
+
+fn grads(t: &Trained, x: &Tensor, eps: &Tensor, w: f64) -> ((f32, f32), Vec<Vec<f32>>) {
+    let vars: Vec<Var> = sorted_vars(t).into_iter().map(|v| v.1).collect();
+    let (l, g) = sharded(&t.model, x, eps, Some((w, &vars))).unwrap();
+    let g = g.unwrap();
+    let v = vars
+        .iter()
+        .map(|v| {
+            g.get(v)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap()
+        })
+        .collect();
+    (l, v)
+}
+
+/// The paper model gives the losses and gradients of the hand-written
+/// kernel it replaced (frozen in `fixtures/`: 40 windows of 24 frames,
+/// weights of seed 3, loss `recon + 0.7·kl`) to 1e-6 relative.
+#[test]
+fn paper_model_equals_the_former_kernel() {
+    let names = include_str!("fixtures/paper_kernel_b40_t24.txt");
+    let bytes = include_bytes!("fixtures/paper_kernel_b40_t24.bin");
+    let want: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    let m = init_model(&Config::default(), 3, &Device::Cpu).unwrap();
+    let x = Tensor::from_vec(
+        Rng::new(11, 1).normals(40 * 24 * 58),
+        (40, 24, 58),
+        &Device::Cpu,
+    )
+    .unwrap();
+    let eps = noise(11, 7, 24, 40, 8, &Device::Cpu).unwrap();
+    let ((recon, kl), g) = grads(&m, &x, &eps, 0.7);
+    assert!(
+        ((recon - want[0]) / want[0]).abs() < 1e-6,
+        "recon {recon} vs {}",
+        want[0]
+    );
+    assert!(
+        ((kl - want[1]) / want[1]).abs() < 1e-6,
+        "kl {kl} vs {}",
+        want[1]
+    );
+    let mut at = 2;
+    let vars = sorted_vars(&m);
+    for (line, (name, gv)) in names.lines().zip(vars.iter().map(|v| &v.0).zip(&g)) {
+        let (n, len) = line.split_once(' ').unwrap();
+        assert_eq!(n, name);
+        let len: usize = len.parse().unwrap();
+        let e = rel(gv, &want[at..at + len]);
+        assert!(e < 1e-6, "{name}: gradient off by {e:e} (relative)");
+        at += len;
+    }
+    assert_eq!(at, want.len());
+}
+
+/// Each model's fused losses and gradients equal candle's autograd of the
+/// same definition run through the blocks' references.
+#[test]
+fn every_model_matches_autograd() {
+    for (name, _) in MODELS {
+        let m = model(name, 4);
+        let vars = sorted_vars(&m);
+        let (x, eps) = batch(5, 9, 12);
+        let loss = |m: &dyn MotionModel| {
+            let l = m.losses(&x, &eps).unwrap();
+            ((&l.recon + (&l.kl * 0.5).unwrap()).unwrap() + &l.extra).unwrap()
+        };
+        let fused = loss(&m.model);
+        let reference = blocks::reference(|| loss(&m.model));
+        let (a, r) = (
+            fused.to_scalar::<f32>().unwrap(),
+            reference.to_scalar::<f32>().unwrap(),
+        );
+        assert!(((a - r) / r).abs() < 1e-5, "{name}: loss {a} vs {r}");
+        let (gf, gr) = (fused.backward().unwrap(), reference.backward().unwrap());
+        for (n, v) in &vars {
+            let f = gf
+                .get(v)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap();
+            let r = gr
+                .get(v)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap();
+            let e = rel(&f, &r);
+            assert!(e < 1e-4, "{name}: {n} gradient off by {e:e}");
+        }
+        // Reconstruction and sampling: the fused path equals the reference.
+        let (rf, rr) = (
+            m.model.reconstruct(&x).unwrap(),
+            blocks::reference(|| m.model.reconstruct(&x).unwrap()),
+        );
+        let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert!(rel(&flat(&rf), &flat(&rr)) < 1e-5, "{name}: reconstruct");
+        let e = noise(1, 2, 9, 3, 8, &Device::Cpu).unwrap();
+        let (sf, sr) = (
+            m.model.sample(&e, None).unwrap(),
+            blocks::reference(|| m.model.sample(&e, None).unwrap()),
+        );
+        assert_eq!(sf.dims(), &[3, 9, 58]);
+        assert!(rel(&flat(&sf), &flat(&sr)) < 1e-4, "{name}: sample");
+        // Started from 2 real frames: those come out unchanged, the rest
+        // differs from the unstarted sample.
+        let start = x.narrow(0, 0, 3).unwrap().narrow(1, 0, 2).unwrap();
+        let s2 = m.model.sample(&e, Some(&start)).unwrap();
+        assert_eq!(flat(&s2.narrow(1, 0, 2).unwrap()), flat(&start));
+        assert_ne!(
+            flat(&s2.narrow(1, 2, 7).unwrap()),
+            flat(&sf.narrow(1, 2, 7).unwrap())
+        );
+    }
+}
+
+/// The losses and gradients of a batch are bit for bit the same with 1 and
+/// 3 threads (shards are summed in order).
+#[test]
+fn results_do_not_depend_on_the_thread_count() {
+    for name in ["paper", "motion"] {
+        let m = model(name, 6);
+        let (x, eps) = batch(70, 10, 13);
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| grads(&m, &x, &eps, 1.0))
+        };
+        let (a, b) = (run(1), run(3));
+        assert_eq!(a.0, b.0, "{name}: losses");
+        assert_eq!(a.1, b.1, "{name}: gradients");
+    }
+}
+
+/// With the skeleton part, every bone keeps its length: the window's own in
+/// a reconstruction, the training set's mean skeleton in a sample.
+#[test]
+fn skeleton_models_keep_their_bones() {
+    let m = model("motion", 8);
+    let body = m.model.config().body.clone().unwrap();
+    let raw = |t: &Tensor| -> Vec<f32> {
+        t.flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap()
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v * body.std[i % 58] + body.mean[i % 58])
+            .collect()
+    };
+    let lengths = |raw: &[f32]| {
+        let y: Vec<f32> = raw.chunks_exact(58).map(|r| r[0]).collect();
+        let j: Vec<f32> = raw
+            .chunks_exact(58)
+            .flat_map(|r| r[1..55].to_vec())
+            .collect();
+        blocks::skeleton::bone_lengths(&y, &j)
+    };
+    let s = m
+        .model
+        .sample(&noise(3, 3, 12, 2, 8, &Device::Cpu).unwrap(), None)
+        .unwrap();
+    for (i, l) in lengths(&raw(&s)).iter().enumerate() {
+        let want = body.bones[i % 18];
+        assert!(
+            (l - want).abs() < 1e-3 * want.max(1.0),
+            "sample bone {}: {l} vs {want}",
+            i % 18
+        );
+    }
+    let (x, _) = batch(2, 6, 21);
+    let r = m.model.reconstruct(&x).unwrap();
+    let (got, real) = (lengths(&raw(&r)), lengths(&raw(&x)));
+    for w in 0..2 {
+        for b in 0..18 {
+            let mean: f32 = (0..6).map(|t| real[(w * 6 + t) * 18 + b]).sum::<f32>() / 6.0;
+            for t in 0..6 {
+                let l = got[(w * 6 + t) * 18 + b];
+                assert!(
+                    (l - mean).abs() < 1e-3 * mean.max(1.0),
+                    "window {w} bone {b}: {l} vs {mean}"
+                );
+            }
+        }
+    }
+}
