@@ -4,6 +4,7 @@
 //! reports live here; the work lives in the crates.
 
 mod audit;
+mod compare;
 mod dataset;
 mod fetch;
 mod motion;
@@ -31,7 +32,8 @@ enum Command {
     Dataset(dataset::DatasetArgs),
     /// Check a dataset: integrity, reproducibility, split hygiene, statistics, data quality.
     Audit(audit::AuditArgs),
-    /// Train the paper's VRNN on a dataset (checkpoints, metrics, loss curve).
+    /// Train a model (default: the project's best; `--model paper` for the
+    /// paper's VRNN) on a dataset (checkpoints, metrics, loss curve).
     Train(train::TrainArgs),
     /// Sample motions from a trained run's prior (and reconstruct test
     /// windows): Parquet + JSON, BVH, contact sheet, animations, 3-D viewer.
@@ -45,6 +47,9 @@ enum Command {
     /// Measure a trained run against real windows: ELBO, diversity,
     /// smoothness, bone lengths, foot skating, Fréchet distance.
     Eval(motion::EvalArgs),
+    /// Train every model with several seeds, evaluate each run, and write a
+    /// results page (mean ± std over seeds, goals met, contact sheets).
+    Compare(compare::CompareArgs),
     /// Benchmark a training step at given batch sizes, and sampling.
     BenchTrain {
         /// Batch sizes.
@@ -53,7 +58,11 @@ enum Command {
         /// Timed steps per batch size (after 2 warm-up steps).
         #[arg(long, default_value_t = 5)]
         steps: usize,
-        /// Also time the plain autograd path (the "before" of issue 7).
+        /// Models to time (default: every model).
+        #[arg(long = "model", value_parser = train::parse_model)]
+        models: Vec<String>,
+        /// Also time each model through candle ops and autograd (the
+        /// blocks' reference path).
         #[arg(long)]
         autograd: bool,
     },
@@ -96,6 +105,14 @@ enum Command {
 }
 
 fn main() -> Result<()> {
+    // Training parallelises over shards of the batch (rayon). candle 0.11's
+    // own element-wise thread pool busy-waits between its parallel ops and
+    // takes the cores from the shards (0.87 s against 0.39 s a step at
+    // batch 1,600 here), so it gets one thread unless the user says
+    // otherwise. Set before any candle op, while this is the only thread.
+    if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
+        std::env::set_var("CANDLE_NUM_THREADS", "1");
+    }
     match Cli::parse().command {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
@@ -104,11 +121,23 @@ fn main() -> Result<()> {
         Command::Screenshot(args) => motion::screenshot(args),
         Command::Eval(args) => motion::eval(args),
         Command::Audit(args) => audit::run(args),
+        Command::Compare(args) => compare::run(args),
         Command::BenchTrain {
             batch,
             steps,
+            models,
             autograd,
-        } => train::bench(&batch, steps.max(1), autograd),
+        } => {
+            let models = if models.is_empty() {
+                motion_vrnn::model::MODELS
+                    .iter()
+                    .map(|m| m.0.to_string())
+                    .collect()
+            } else {
+                models
+            };
+            train::bench(&models, &batch, steps.max(1), autograd)
+        }
         Command::BenchDataset {
             sources,
             repeat,

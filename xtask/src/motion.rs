@@ -16,6 +16,7 @@ use motion_render::viewer::{write_viewer, MotionSet};
 use motion_render::Motion;
 use motion_vrnn::data::{Dataset, Stats, Windows};
 use motion_vrnn::train::{evaluate, layout, load_model, noise, CheckpointMeta, Trained};
+use motion_vrnn::MotionModel;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -24,38 +25,38 @@ use std::path::{Path, PathBuf};
 pub struct RunArgs {
     /// Run directory written by `cargo xtask train`.
     #[arg(long, default_value = "runs/vrnn")]
-    run: PathBuf,
+    pub run: PathBuf,
     /// Checkpoint inside the run: `best` or `last`.
     #[arg(long, default_value = layout::BEST)]
-    checkpoint: String,
+    pub checkpoint: String,
     /// Dataset directory (default: the one the run was trained on).
     #[arg(long)]
-    data: Option<PathBuf>,
+    pub data: Option<PathBuf>,
     /// Seed of the sampling noise.
     #[arg(long, default_value_t = 0)]
-    seed: u64,
+    pub seed: u64,
     /// Split of real windows to reconstruct and compare with.
     #[arg(long, default_value = "test")]
-    split: String,
+    pub split: String,
 }
 
 /// `cargo xtask sample` options.
 #[derive(Args, Debug)]
 pub struct SampleArgs {
     #[command(flatten)]
-    run: RunArgs,
+    pub run: RunArgs,
     /// Motions to sample from the prior.
     #[arg(long, default_value_t = 36)]
-    n: usize,
+    pub n: usize,
     /// Frames per motion (30 fps).
     #[arg(long, default_value_t = 128)]
-    frames: usize,
+    pub frames: usize,
     /// Windows of `--split` to reconstruct (encode, decode) beside the real ones.
     #[arg(long, default_value_t = 4)]
-    reconstruct: usize,
+    pub reconstruct: usize,
     /// Output directory (default: RUN/samples).
     #[arg(long)]
-    out: Option<PathBuf>,
+    pub out: Option<PathBuf>,
 }
 
 /// `cargo xtask eval` options.
@@ -161,11 +162,20 @@ fn to_motion(id: String, x: &[f32], stats: &Stats) -> Motion {
     }
 }
 
-/// `n` windows sampled from the prior, normalised `[n][T × 58]`.
+/// `n` windows sampled from the prior, normalised `[n][T × 58]`. Each
+/// starts from the first frame of a training window drawn at random
+/// (seeded by `seed`): the model reads it through its posterior, and the
+/// prior generates every later frame.
 fn sample_windows(m: &Loaded, n: usize, frames: usize, seed: u64) -> Result<Vec<Vec<f32>>> {
     let latent = m.model.model.config().latent;
     let eps = noise(seed ^ 0x5A3F1E, 0, frames, n, latent, &m.device)?;
-    let x = m.model.model.sample(&eps)?;
+    let train = split(m, "train")?;
+    let mut rng = motion_vrnn::rng::Rng::new(seed, 0x57A7);
+    let picks: Vec<usize> = (0..n)
+        .map(|_| ((rng.uniform() * train.n as f64) as usize).min(train.n - 1))
+        .collect();
+    let start = train.batch(&picks, &m.device)?.narrow(1, 0, 1)?;
+    let x = m.model.model.sample(&eps, Some(&start))?;
     let v = x.flatten_all()?.to_vec1::<f32>()?;
     Ok(v.chunks(frames * NUM_FEATURES)
         .map(<[f32]>::to_vec)
@@ -212,7 +222,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     if a.n == 0 || a.frames == 0 {
         bail!("--n and --frames must be positive");
     }
-    let m = load(&a.run, &[&a.run.split])?;
+    let m = load(&a.run, &["train", &a.run.split])?;
     let out = a.out.clone().unwrap_or_else(|| a.run.run.join("samples"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let started = std::time::Instant::now();
@@ -462,44 +472,62 @@ pub fn export(a: ExportArgs) -> Result<()> {
 
 /// What `eval.json` holds.
 #[derive(Serialize)]
-struct EvalReport {
-    run: String,
-    checkpoint: String,
-    epoch: usize,
-    dataset: String,
-    split: String,
-    seed: u64,
-    windows: usize,
-    frames: usize,
+pub struct EvalReport {
+    pub run: String,
+    pub checkpoint: String,
+    pub epoch: usize,
+    pub dataset: String,
+    pub split: String,
+    pub seed: u64,
+    pub windows: usize,
+    pub frames: usize,
     /// Per frame, on the split, with the training noise convention.
-    neg_elbo_per_frame: f64,
-    recon_per_frame: f64,
-    kl_per_frame: f64,
-    real: MotionStats,
-    reconstructed: MotionStats,
-    generated: MotionStats,
+    pub neg_elbo_per_frame: f64,
+    pub recon_per_frame: f64,
+    pub kl_per_frame: f64,
+    pub real: MotionStats,
+    pub reconstructed: MotionStats,
+    pub generated: MotionStats,
     /// Generated over real.
-    jerk_ratio: f64,
-    high_freq_ratio: f64,
-    frechet_generated: f64,
-    frechet_reconstructed: f64,
+    pub jerk_ratio: f64,
+    pub high_freq_ratio: f64,
+    pub frechet_generated: f64,
+    pub frechet_reconstructed: f64,
     /// Reference: train windows against the split.
-    frechet_train: f64,
-    options: Options,
+    pub frechet_train: f64,
+    pub options: Options,
 }
 
 /// `cargo xtask eval`.
 pub fn eval(a: EvalArgs) -> Result<()> {
-    let m = load(&a.run, &["train", &a.run.split])?;
-    let w = split(&m, &a.run.split)?;
     let out = a.out.clone().unwrap_or_else(|| a.run.run.join("eval"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let started = std::time::Instant::now();
-    let (recon, kl) = evaluate(&m.model.model, w, 256, a.run.seed, &m.device)?;
+    let report = report(&a.run)?;
+    let json = serde_json::to_string_pretty(&report)? + "\n";
+    motion_render::write_file(&out.join("eval.json"), json.as_bytes())?;
+    let md = markdown(&report);
+    motion_render::write_file(&out.join("eval.md"), md.as_bytes())?;
+    print!("{md}");
+    println!(
+        "\nwrote {} and {} in {:.1} s",
+        out.join("eval.json").display(),
+        out.join("eval.md").display(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// The evaluation of a run: real, reconstructed and generated windows of
+/// the split, measured alike.
+pub fn report(a: &RunArgs) -> Result<EvalReport> {
+    let m = load(a, &["train", &a.split])?;
+    let w = split(&m, &a.split)?;
+    let (recon, kl) = evaluate(&m.model.model, w, 256, a.seed, &m.device)?;
     let t = w.length as f64;
     let idx: Vec<usize> = (0..w.n).collect();
     let (real, rec) = reconstruct(&m, w, &idx)?;
-    let gen = sample_windows(&m, w.n, w.length, a.run.seed)?;
+    let gen = sample_windows(&m, w.n, w.length, a.seed)?;
     let global = |set: &[Vec<f32>]| -> Vec<Vec<Pose>> {
         set.iter().map(|x| to_poses(x, &m.data.stats)).collect()
     };
@@ -525,12 +553,12 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         .collect();
     let s_real = summaries(&real);
     let report = EvalReport {
-        run: a.run.run.display().to_string(),
-        checkpoint: a.run.checkpoint.clone(),
+        run: a.run.display().to_string(),
+        checkpoint: a.checkpoint.clone(),
         epoch: m.meta.epoch,
         dataset: m.data.dir.display().to_string(),
-        split: a.run.split.clone(),
-        seed: a.run.seed,
+        split: a.split.clone(),
+        seed: a.seed,
         windows: w.n,
         frames: w.length,
         neg_elbo_per_frame: (recon + kl) / t,
@@ -546,21 +574,10 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         generated: sg,
         options: o,
     };
-    let json = serde_json::to_string_pretty(&report)? + "\n";
-    motion_render::write_file(&out.join("eval.json"), json.as_bytes())?;
-    let md = markdown(&report);
-    motion_render::write_file(&out.join("eval.md"), md.as_bytes())?;
-    print!("{md}");
-    println!(
-        "\nwrote {} and {} in {:.1} s",
-        out.join("eval.json").display(),
-        out.join("eval.md").display(),
-        started.elapsed().as_secs_f64()
-    );
-    Ok(())
+    Ok(report)
 }
 
-fn markdown(r: &EvalReport) -> String {
+pub fn markdown(r: &EvalReport) -> String {
     let mut s = format!(
         "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}).\n\n",
         r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed
@@ -569,28 +586,47 @@ fn markdown(r: &EvalReport) -> String {
         "Per frame on `{}`: negative ELBO **{:.3}** = reconstruction {:.3} + KL {:.3} (normalised units).\n\n",
         r.split, r.neg_elbo_per_frame, r.recon_per_frame, r.kl_per_frame
     );
-    s += "| measure | real | reconstructed | generated | generated / real |\n|---|---|---|---|---|\n";
+    s += "| measure | real | reconstructed | generated | reconstructed / real | generated / real |\n|---|---|---|---|---|---|\n";
     type Row = (&'static str, fn(&MotionStats) -> f64, usize);
-    let rows: [Row; 6] = [
+    let rows: [Row; 11] = [
         ("APD, m", |m| m.apd_m, 3),
         ("mean jerk, m/s³", |m| m.jerk_m_s3, 1),
         ("power above 5 Hz", |m| m.high_freq_share, 4),
         ("bone length std / mean", |m| m.bone_cv, 4),
-        ("foot skating (share of foot-frames)", |m| m.skate_share, 4),
         (
             "foot contact (share of foot-frames)",
             |m| m.contact_share,
             4,
         ),
+        ("foot skating (share of foot-frames)", |m| m.skate_share, 4),
+        (
+            "skating among contact foot-frames",
+            |m| m.skate_in_contact,
+            4,
+        ),
+        ("hips height, m", |m| m.hip_height_m, 3),
+        ("hips height, last 32 frames, m", |m| m.hip_height_end_m, 3),
+        ("hips horizontal speed, m/s", |m| m.root_speed_m_s, 3),
+        (
+            "hips horizontal speed, last 32 frames, m/s",
+            |m| m.root_speed_end_m_s,
+            3,
+        ),
     ];
-    for (name, f, p) in rows {
-        let (a, b, c) = (f(&r.real), f(&r.reconstructed), f(&r.generated));
-        let ratio = if a.abs() > 1e-6 {
-            format!("{:.2}", c / a)
+    let ratio = |x: f64, real: f64| {
+        if real.abs() > 1e-6 {
+            format!("{:.2}", x / real)
         } else {
             "n/a (real ≈ 0)".into()
-        };
-        s += &format!("| {name} | {a:.p$} | {b:.p$} | {c:.p$} | {ratio} |\n");
+        }
+    };
+    for (name, f, p) in rows {
+        let (a, b, c) = (f(&r.real), f(&r.reconstructed), f(&r.generated));
+        s += &format!(
+            "| {name} | {a:.p$} | {b:.p$} | {c:.p$} | {} | {} |\n",
+            ratio(b, a),
+            ratio(c, a)
+        );
     }
     s += &format!(
         "\nFréchet distance to the real `{}` windows (summaries: per-window mean and std of the 58 normalised features): generated **{:.2}**, reconstructed {:.2}, train windows {:.2} (reference).\n",

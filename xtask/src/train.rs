@@ -4,12 +4,16 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use motion_render::chart::{line_chart, Series};
+use motion_vrnn::model::{Config, MODELS};
 use motion_vrnn::train::{layout, train, EpochMetrics, TrainConfig, TrainProgress};
 use std::path::{Path, PathBuf};
 
 #[derive(Clone, Copy, ValueEnum)]
-enum Preset {
-    /// Batch 64, 30 epochs, KL warm-up 5, clipping 100, early stopping 10.
+pub enum Preset {
+    /// The default schedule: batch 64, 400 epochs, KL warm-up 20, clipping
+    /// 100, early stopping after 60 epochs without improvement.
+    Standard,
+    /// A quick look: batch 64, 30 epochs, KL warm-up 5, clipping 100, early stopping 10.
     Quick,
     /// Exactly the paper: Adam 1e-3, batch 1,600, 2,000 epochs, nothing else.
     Paper,
@@ -19,40 +23,52 @@ enum Preset {
 pub struct TrainArgs {
     /// Dataset directory written by `cargo xtask dataset`.
     #[arg(long, default_value = "data/datasets/cmu")]
-    data: PathBuf,
+    pub data: PathBuf,
     /// Run directory (checkpoints, metrics, loss curve).
     #[arg(long, default_value = "runs/vrnn")]
-    out: PathBuf,
+    pub out: PathBuf,
+    /// The model (`paper`, `filtered`, `skeletal`, `motion`; see docs/training.md).
+    #[arg(long, default_value = motion_vrnn::model::DEFAULT_MODEL, value_parser = parse_model)]
+    pub model: String,
+    /// Override the model's latent filter pole (0: off).
+    #[arg(long)]
+    pub latent_filter: Option<f64>,
+    /// Override the model's output filter pole (0: off).
+    #[arg(long)]
+    pub output_filter: Option<f64>,
+    /// Override the weight of the model's foot-slide penalty (0: off).
+    #[arg(long)]
+    pub feet_weight: Option<f64>,
     /// Starting point for every option below.
-    #[arg(long, value_enum, default_value_t = Preset::Quick)]
-    preset: Preset,
+    #[arg(long, value_enum, default_value_t = Preset::Standard)]
+    pub preset: Preset,
     /// Epochs.
     #[arg(long)]
-    epochs: Option<usize>,
+    pub epochs: Option<usize>,
     /// Windows per step.
     #[arg(long)]
-    batch: Option<usize>,
+    pub batch: Option<usize>,
     /// Adam learning rate.
     #[arg(long)]
-    lr: Option<f64>,
+    pub lr: Option<f64>,
     /// Seed of initialisation, shuffling and noise.
     #[arg(long)]
-    seed: Option<u64>,
+    pub seed: Option<u64>,
     /// KL warm-up epochs (0: off).
     #[arg(long)]
-    kl_warmup: Option<usize>,
+    pub kl_warmup: Option<usize>,
     /// Clip the global gradient norm (0: off).
     #[arg(long)]
-    clip: Option<f64>,
+    pub clip: Option<f64>,
     /// Early-stopping patience in epochs (0: off).
     #[arg(long)]
-    early_stopping: Option<usize>,
+    pub early_stopping: Option<usize>,
     /// Continue the run in --out from its `last` checkpoint.
     #[arg(long)]
-    resume: bool,
+    pub resume: bool,
     /// No progress bar.
     #[arg(long)]
-    quiet: bool,
+    pub quiet: bool,
 }
 
 /// The progress bar, and whether `--quiet` was given.
@@ -81,11 +97,34 @@ impl TrainProgress for Bar {
     }
 }
 
+/// A model name of [`MODELS`], or an error that lists them.
+pub fn parse_model(name: &str) -> std::result::Result<String, String> {
+    match Config::named(name) {
+        Some(_) => Ok(name.to_string()),
+        None => Err(format!(
+            "unknown model {name:?}; the models: {}",
+            MODELS.iter().map(|m| m.0).collect::<Vec<_>>().join(", ")
+        )),
+    }
+}
+
 pub fn run(a: TrainArgs) -> Result<()> {
     let mut cfg = match a.preset {
+        Preset::Standard => TrainConfig::standard(),
         Preset::Quick => TrainConfig::quick(),
         Preset::Paper => TrainConfig::paper(),
     };
+    cfg.model = Config::named(&a.model).context("unknown model")?;
+    let parts = &mut cfg.model.parts;
+    if let Some(v) = a.latent_filter {
+        parts.latent_filter = v;
+    }
+    if let Some(v) = a.output_filter {
+        parts.output_filter = v;
+    }
+    if let Some(v) = a.feet_weight {
+        parts.feet = v;
+    }
     if let Some(v) = a.epochs {
         cfg.epochs = v;
     }
@@ -117,7 +156,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let n = |s: &str| data.splits.get(s).map_or(0, |w| w.n);
     if !a.quiet {
         eprintln!(
-            "training on {} train / {} val windows from {} on {:?}; batch {}, {} epochs, lr {}",
+            "training the {} model on {} train / {} val windows from {} on {:?}; batch {}, {} epochs, lr {}",
+            a.model,
             n("train"),
             n("val"),
             a.data.display(),
@@ -204,74 +244,86 @@ pub fn plot_history(path: &Path, history: &[EpochMetrics]) -> Result<()> {
 }
 
 /// `cargo xtask bench-train`: seconds per training step (forward, backward,
-/// Adam) of the paper's model on random windows, and the sampling time.
-pub fn bench(batches: &[usize], steps: usize, autograd: bool) -> Result<()> {
+/// Adam) of each model on random windows, and the sampling time, in one
+/// table. With `reference`, also the same models through candle ops
+/// (autograd), the oracle of the fused blocks.
+pub fn bench(models: &[String], batches: &[usize], steps: usize, reference: bool) -> Result<()> {
     use motion_vrnn::optim::Adam;
-    use motion_vrnn::train::{init_model, named_vars, noise};
+    use motion_vrnn::train::{init_model, named_vars, noise, sharded};
+    use motion_vrnn::MotionModel;
     let device = motion_vrnn::model::default_device();
-    let cfg = TrainConfig::paper();
     let t = 128;
     println!(
-        "training step of the paper's VRNN (T = {t}, forward + backward + Adam) on {device:?}, {} rayon threads, after 2 warm-up steps",
+        "training step (T = {t}, forward + backward + Adam) on {device:?}, {} rayon threads; median and min of {steps} steps after 2 warm-up steps",
         rayon::current_num_threads()
     );
     println!(
-        "{:>9} {:>6} {:>6} {:>10} {:>10} {:>16}",
-        "path", "batch", "steps", "median s", "min s", "windows*frames/s"
+        "{:>9} {:>9} {:>6} {:>10} {:>10} {:>16} {:>12}",
+        "model", "path", "batch", "median s", "min s", "windows*frames/s", "sample 36 s"
     );
-    let paths: &[&str] = if autograd {
-        &["autograd", "fused"]
+    let paths: &[&str] = if reference {
+        &["fused", "autograd"]
     } else {
         &["fused"]
     };
-    for &b in batches {
+    for name in models {
+        let mut model = Config::named(name).context("unknown model")?;
+        // Synthetic data: the body of the skeleton part from random windows.
+        let n = 64 * t * model.input;
+        let train = motion_vrnn::rng::Rng::new(2, 0).normals(n);
+        let mut mean = vec![0.0; model.input];
+        mean[0] = 15.0;
+        model.fit_to(&mean, &vec![2.0; model.input], &train);
         for &path in paths {
-            let m = init_model(&cfg.model, 0, &device)?;
-            let mut adam = Adam::new(named_vars(&m.varmap), cfg.adam)?;
-            let x = candle_core::Tensor::from_vec(
-                motion_vrnn::rng::Rng::new(1, b as u64).normals(b * t * cfg.model.input),
-                (b, t, cfg.model.input),
-                &device,
-            )?;
-            let mut times = Vec::new();
-            for step in 0..steps + 2 {
-                let eps = noise(0, step as u64, t, b, cfg.model.latent, &device)?;
-                let start = std::time::Instant::now();
-                let l = if path == "fused" {
-                    m.model.losses(&x, &eps, Some(1.0))?
-                } else {
-                    m.model.forward(&x, &eps)?
-                };
-                let loss = (&l.recon + &l.kl)?;
-                let grads = loss.backward()?;
-                adam.step(&grads)?;
-                let _ = loss.to_scalar::<f32>()?;
-                if step >= 2 {
-                    times.push(start.elapsed().as_secs_f64());
+            for &b in batches {
+                let m = init_model(&model, 0, &device)?;
+                let mut adam = Adam::new(named_vars(&m.varmap), Default::default())?;
+                let vars: Vec<_> = adam.vars().iter().map(|v| v.1.clone()).collect();
+                let x = candle_core::Tensor::from_vec(
+                    motion_vrnn::rng::Rng::new(1, b as u64).normals(b * t * model.input),
+                    (b, t, model.input),
+                    &device,
+                )?;
+                let mut times = Vec::new();
+                for step in 0..steps + 2 {
+                    let eps = noise(0, step as u64, t, b, model.latent, &device)?;
+                    let start = std::time::Instant::now();
+                    let grads = if path == "fused" {
+                        sharded(&m.model, &x, &eps, Some((1.0, &vars)))?.1
+                    } else {
+                        motion_vrnn::blocks::reference(|| {
+                            let l = m.model.losses(&x, &eps)?;
+                            ((&l.recon + &l.kl)? + &l.extra)?.backward().map(Some)
+                        })?
+                    };
+                    adam.step(&grads.context("no gradients")?)?;
+                    if step >= 2 {
+                        times.push(start.elapsed().as_secs_f64());
+                    }
                 }
+                times.sort_by(f64::total_cmp);
+                let median = times[times.len() / 2];
+                let mut sample = Vec::new();
+                for k in 0..5 {
+                    let eps = noise(5, k, t, 36, model.latent, &device)?;
+                    let start = std::time::Instant::now();
+                    let s = if path == "fused" {
+                        m.model.sample(&eps, None)?
+                    } else {
+                        motion_vrnn::blocks::reference(|| m.model.sample(&eps, None))?
+                    };
+                    let _ = s.sum_all()?.to_scalar::<f32>()?;
+                    sample.push(start.elapsed().as_secs_f64());
+                }
+                sample.sort_by(f64::total_cmp);
+                println!(
+                    "{name:>9} {path:>9} {b:>6} {median:>10.4} {:>10.4} {:>16.0} {:>12.4}",
+                    times[0],
+                    (b * t) as f64 / median,
+                    sample[2]
+                );
             }
-            times.sort_by(f64::total_cmp);
-            let median = times[times.len() / 2];
-            println!(
-                "{path:>9} {b:>6} {steps:>6} {median:>10.4} {:>10.4} {:>16.0}",
-                times[0],
-                (b * t) as f64 / median
-            );
         }
     }
-    let m = init_model(&cfg.model, 0, &device)?;
-    let mut times = Vec::new();
-    for k in 0..7 {
-        let eps = noise(5, k, t, 36, cfg.model.latent, &device)?;
-        let start = std::time::Instant::now();
-        let s = m.model.sample(&eps)?;
-        let _ = s.sum_all()?.to_scalar::<f32>()?;
-        times.push(start.elapsed().as_secs_f64());
-    }
-    times.sort_by(f64::total_cmp);
-    println!(
-        "sampling 36 motions x {t} frames: median {:.4} s, min {:.4} s",
-        times[3], times[0]
-    );
     Ok(())
 }

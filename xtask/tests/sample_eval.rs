@@ -257,6 +257,32 @@ fn sample_and_eval_write_what_they_promise() {
         }
     }
     assert!(f("frechet_generated") >= 0.0 && f("frechet_train") >= 0.0);
+    // The default model places joints by forward kinematics: generated bones
+    // keep the lengths of the window each motion started from.
+    assert!(v["generated"]["bone_cv"].as_f64().unwrap() < 1e-4);
+    for k in [
+        "skate_in_contact",
+        "hip_height_m",
+        "hip_height_end_m",
+        "root_speed_m_s",
+        "root_speed_end_m_s",
+    ] {
+        assert!(v["real"][k].as_f64().unwrap() > 0.0, "real.{k}");
+    }
     let md = std::fs::read_to_string(e.join("eval.md")).unwrap();
-    assert!(md.contains("| measure | real | reconstructed | generated | generated / real |"));
+    assert!(md.contains(
+        "| measure | real | reconstructed | generated | reconstructed / real | generated / real |"
+    ));
+    assert!(md.contains("| hips horizontal speed, last 32 frames, m/s |"));
+
+    // Generated motions start from different real frames, not one mean pose.
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s.join("samples.json")).unwrap()).unwrap();
+    let firsts: std::collections::BTreeSet<String> = j["motions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["frames"][0].to_string())
+        .collect();
+    assert!(firsts.len() > 1, "every motion starts from the same pose");
 }

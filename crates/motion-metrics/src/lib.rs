@@ -58,6 +58,48 @@ pub struct MotionStats {
     pub skate_share: f64,
     /// Share of foot-frames in contact with the floor.
     pub contact_share: f64,
+    /// Among foot-frames in contact, the share that skate.
+    #[serde(default)]
+    pub skate_in_contact: f64,
+    /// Drift: mean hips height above the floor, over whole motions (m).
+    #[serde(default)]
+    pub hip_height_m: f64,
+    /// Mean hips height over the last [`TAIL`] frames of each motion (m).
+    #[serde(default)]
+    pub hip_height_end_m: f64,
+    /// Drift: mean horizontal speed of the hips, over whole motions (m/s).
+    #[serde(default)]
+    pub root_speed_m_s: f64,
+    /// Mean horizontal hips speed over the last [`TAIL`] frames (m/s).
+    #[serde(default)]
+    pub root_speed_end_m_s: f64,
+}
+
+/// Frames at the end of a motion over which drift is measured.
+pub const TAIL: usize = 32;
+
+/// Mean hips height (m) over frames `from..` of a motion.
+pub fn hip_height(m: &[Pose], from: usize) -> f64 {
+    let f = &m[from.min(m.len())..];
+    if f.is_empty() {
+        return 0.0;
+    }
+    f.iter().map(|p| p[0][1]).sum::<f64>() / f.len() as f64 * METRES_PER_UNIT
+}
+
+/// Mean horizontal speed of the hips (m/s) over the steps that end in
+/// frames `from..` (and after frame 0).
+pub fn root_speed(m: &[Pose], from: usize, fps: f64) -> f64 {
+    let steps: Vec<f64> = (from.max(1)..m.len())
+        .map(|t| {
+            let (dx, dz) = (m[t][0][0] - m[t - 1][0][0], m[t][0][2] - m[t - 1][0][2]);
+            (dx * dx + dz * dz).sqrt()
+        })
+        .collect();
+    if steps.is_empty() {
+        return 0.0;
+    }
+    steps.iter().sum::<f64>() / steps.len() as f64 * fps * METRES_PER_UNIT
 }
 
 /// Average pairwise distance: over all pairs of motions, the mean Euclidean
@@ -219,6 +261,11 @@ pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
         bone_cv: mean(&bone_cv),
         skate_share: s as f64 / a,
         contact_share: c as f64 / a,
+        skate_in_contact: s as f64 / c.max(1) as f64,
+        hip_height_m: mean(&|m| hip_height(m, 0)),
+        hip_height_end_m: mean(&|m| hip_height(m, m.len().saturating_sub(TAIL))),
+        root_speed_m_s: mean(&|m| root_speed(m, 0, o.fps)),
+        root_speed_end_m_s: mean(&|m| root_speed(m, m.len().saturating_sub(TAIL), o.fps)),
     }
 }
 
@@ -381,6 +428,27 @@ mod tests {
         // Three copies 0, 1 and 3 units apart in x: pair distances 1, 3, 2.
         let m = [still(0.0), still(1.0), still(3.0)];
         assert!((apd(&m) - 2.0 * METRES_PER_UNIT).abs() < 1e-12);
+    }
+
+    #[test]
+    fn drift_of_a_rising_gliding_root() {
+        // Hips at height 1 + t units, moving 3 units in x and 4 in z per
+        // frame: 5 units per frame horizontally.
+        let m: Vec<Pose> = (0..40)
+            .map(|t| {
+                let mut p: Pose = [[0.0; 3]; NUM_JOINTS];
+                p[0] = [3.0 * t as f64, 1.0 + t as f64, 4.0 * t as f64];
+                p
+            })
+            .collect();
+        let u = METRES_PER_UNIT;
+        assert!((hip_height(&m, 0) - 20.5 * u).abs() < 1e-12);
+        // Last 32 frames: t = 8..39, mean height 1 + 23.5.
+        assert!((hip_height(&m, 8) - 24.5 * u).abs() < 1e-12);
+        assert!((root_speed(&m, 0, 30.0) - 150.0 * u).abs() < 1e-9);
+        assert!((root_speed(&m, 8, 30.0) - 150.0 * u).abs() < 1e-9);
+        let s = motion_stats(&[m], &Options::default());
+        assert!((s.hip_height_end_m - 24.5 * u).abs() < 1e-12);
     }
 
     #[test]

@@ -1,0 +1,307 @@
+//! `cargo xtask compare`: every model trained with several seeds on one
+//! dataset, each run evaluated, and one results page (mean ± std over the
+//! seeds, the goals each model meets, training time, contact sheets).
+
+use crate::motion::{self, EvalReport, RunArgs, SampleArgs};
+use crate::train::{self, Preset, TrainArgs};
+use anyhow::{Context, Result};
+use clap::Args;
+use motion_vrnn::train::layout;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// `cargo xtask compare` options.
+#[derive(Args, Debug)]
+pub struct CompareArgs {
+    /// Dataset directory written by `cargo xtask dataset`.
+    #[arg(long, default_value = "data/datasets/cmu")]
+    data: PathBuf,
+    /// Directory of the runs (`MODEL/seed-N/`); runs already there are reused.
+    #[arg(long, default_value = "runs/compare")]
+    out: PathBuf,
+    /// Models (default: every model).
+    #[arg(long = "model", value_parser = train::parse_model)]
+    models: Vec<String>,
+    /// Training seeds per model (0, 1, …).
+    #[arg(long, default_value_t = 3)]
+    seeds: u64,
+    /// Epochs (default: the standard preset's).
+    #[arg(long)]
+    epochs: Option<usize>,
+    /// The results page (Markdown; contact sheets go to `images/` beside it).
+    #[arg(long, default_value = "runs/compare/results.md")]
+    page: PathBuf,
+}
+
+/// One evaluated run.
+struct Run {
+    seed: u64,
+    seconds: f64,
+    report: EvalReport,
+}
+
+/// A measure of the results table: name, value, decimals.
+type Measure = (&'static str, fn(&EvalReport) -> f64, usize);
+
+const MEASURES: [Measure; 14] = [
+    (
+        "jerk ÷ real, generated",
+        |r| r.generated.jerk_m_s3 / r.real.jerk_m_s3,
+        2,
+    ),
+    (
+        "jerk ÷ real, reconstructed",
+        |r| r.reconstructed.jerk_m_s3 / r.real.jerk_m_s3,
+        2,
+    ),
+    (
+        "bone length std/mean, generated (%)",
+        |r| 100.0 * r.generated.bone_cv,
+        2,
+    ),
+    (
+        "foot contact ÷ real",
+        |r| r.generated.contact_share / r.real.contact_share,
+        2,
+    ),
+    (
+        "skating among contact frames ÷ real",
+        |r| r.generated.skate_in_contact / r.real.skate_in_contact,
+        2,
+    ),
+    ("APD ÷ real", |r| r.generated.apd_m / r.real.apd_m, 2),
+    (
+        "hips height ÷ real",
+        |r| r.generated.hip_height_m / r.real.hip_height_m,
+        2,
+    ),
+    (
+        "hips height, last 32 ÷ real",
+        |r| r.generated.hip_height_end_m / r.real.hip_height_end_m,
+        2,
+    ),
+    (
+        "hips speed ÷ real",
+        |r| r.generated.root_speed_m_s / r.real.root_speed_m_s,
+        2,
+    ),
+    (
+        "hips speed, last 32 ÷ real",
+        |r| r.generated.root_speed_end_m_s / r.real.root_speed_end_m_s,
+        2,
+    ),
+    ("Fréchet, generated", |r| r.frechet_generated, 1),
+    ("Fréchet, train vs test (reference)", |r| r.frechet_train, 1),
+    ("Fréchet, reconstructed", |r| r.frechet_reconstructed, 2),
+    ("test negative ELBO per frame", |r| r.neg_elbo_per_frame, 3),
+];
+
+/// A goal: its name and whether a run meets it.
+type Goal = (&'static str, fn(&EvalReport) -> bool);
+
+/// The goals of issue 11.
+const GOALS: [Goal; 8] = [
+    ("jerk 0.67–1.5× (generated and reconstructed)", |r| {
+        let (g, c) = (
+            r.generated.jerk_m_s3 / r.real.jerk_m_s3,
+            r.reconstructed.jerk_m_s3 / r.real.jerk_m_s3,
+        );
+        (0.67..=1.5).contains(&g) && (0.67..=1.5).contains(&c)
+    }),
+    ("bone cv ≤ 1 %", |r| r.generated.bone_cv <= 0.01),
+    ("contact 0.75–1.25×", |r| {
+        within(r.generated.contact_share / r.real.contact_share)
+    }),
+    ("skating in contact ≤ 2×", |r| {
+        r.generated.skate_in_contact <= 2.0 * r.real.skate_in_contact
+    }),
+    ("APD 0.75–1.25×", |r| {
+        within(r.generated.apd_m / r.real.apd_m)
+    }),
+    ("hips height 0.75–1.25× (whole, last 32)", |r| {
+        within(r.generated.hip_height_m / r.real.hip_height_m)
+            && within(r.generated.hip_height_end_m / r.real.hip_height_end_m)
+    }),
+    ("hips speed 0.75–1.25× (whole, last 32)", |r| {
+        within(r.generated.root_speed_m_s / r.real.root_speed_m_s)
+            && within(r.generated.root_speed_end_m_s / r.real.root_speed_end_m_s)
+    }),
+    ("Fréchet ≤ train-vs-test", |r| {
+        r.frechet_generated <= r.frechet_train
+    }),
+];
+
+fn within(x: f64) -> bool {
+    (0.75..=1.25).contains(&x)
+}
+
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len().max(1) as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    (m, var.sqrt())
+}
+
+/// `cargo xtask compare`.
+pub fn run(a: CompareArgs) -> Result<()> {
+    let models: Vec<String> = if a.models.is_empty() {
+        motion_vrnn::model::MODELS
+            .iter()
+            .map(|m| m.0.to_string())
+            .collect()
+    } else {
+        a.models.clone()
+    };
+    let page_dir = a.page.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let images = page_dir.join("images").join("results");
+    std::fs::create_dir_all(&images).with_context(|| format!("creating {}", images.display()))?;
+    let mut table: Vec<(String, Vec<Run>)> = Vec::new();
+    for name in &models {
+        let mut runs = Vec::new();
+        for seed in 0..a.seeds {
+            let dir = a.out.join(name).join(format!("seed-{seed}"));
+            let started = std::time::Instant::now();
+            if dir.join(layout::LAST).join(layout::META).exists() {
+                eprintln!("{name} seed {seed}: reusing {}", dir.display());
+            } else {
+                eprintln!("{name} seed {seed}: training into {}", dir.display());
+                train::run(TrainArgs {
+                    data: a.data.clone(),
+                    out: dir.clone(),
+                    model: name.clone(),
+                    latent_filter: None,
+                    output_filter: None,
+                    feet_weight: None,
+                    preset: Preset::Standard,
+                    epochs: a.epochs,
+                    batch: None,
+                    lr: None,
+                    seed: Some(seed),
+                    kl_warmup: None,
+                    clip: None,
+                    early_stopping: None,
+                    resume: false,
+                    quiet: true,
+                })
+                .with_context(|| format!("training {name} seed {seed}"))?;
+            }
+            let seconds = train_seconds(&dir).unwrap_or(started.elapsed().as_secs_f64());
+            let run_args = RunArgs {
+                run: dir.clone(),
+                checkpoint: layout::BEST.into(),
+                data: Some(a.data.clone()),
+                seed: 0,
+                split: "test".into(),
+            };
+            let report = motion::report(&run_args)
+                .with_context(|| format!("evaluating {}", dir.display()))?;
+            eprintln!(
+                "{name} seed {seed}: jerk {:.2}x, bone cv {:.2} %, APD {:.2}x, Fréchet {:.1}",
+                report.generated.jerk_m_s3 / report.real.jerk_m_s3,
+                100.0 * report.generated.bone_cv,
+                report.generated.apd_m / report.real.apd_m,
+                report.frechet_generated
+            );
+            if seed == 0 {
+                let samples = dir.join("samples");
+                motion::sample(SampleArgs {
+                    run: run_args,
+                    n: 12,
+                    frames: 128,
+                    reconstruct: 0,
+                    out: Some(samples.clone()),
+                })?;
+                let png = images.join(format!("{name}.png"));
+                std::fs::copy(samples.join("contact_sheet.png"), &png)
+                    .with_context(|| format!("copying the contact sheet to {}", png.display()))?;
+            }
+            runs.push(Run {
+                seed,
+                seconds,
+                report,
+            });
+        }
+        table.push((name.clone(), runs));
+    }
+    let md = page(&a, &table);
+    motion_render::write_file(&a.page, md.as_bytes())?;
+    println!("{md}");
+    eprintln!("wrote {}", a.page.display());
+    Ok(())
+}
+
+/// Training seconds of a run: the sum of its epochs' times.
+fn train_seconds(dir: &Path) -> Option<f64> {
+    let text = std::fs::read_to_string(dir.join(layout::METRICS)).ok()?;
+    let secs = text
+        .lines()
+        .filter_map(|l| serde_json::from_str::<motion_vrnn::train::EpochMetrics>(l).ok())
+        .map(|m| m.seconds)
+        .sum();
+    Some(secs)
+}
+
+fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
+    let mut s = String::from("# Results: every model, several seeds\n\n");
+    let _ = writeln!(
+        s,
+        "Written by `cargo xtask compare --data {} --page {}` ({} seeds per model, the `standard` schedule{}). \
+         Each run is evaluated as `cargo xtask eval` does: its `best` checkpoint, the 51-odd real `test` windows, \
+         as many generated motions of 128 frames (sampling seed 0, each started from one real training frame), \
+         and the reconstructions of the test windows. Every value is the mean ± std over the seeds; \
+         measures are defined in [metrics.md](metrics.md).\n",
+        a.data.display(),
+        a.page.display(),
+        a.seeds,
+        a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default()
+    );
+    s += "| measure |";
+    for (name, _) in table {
+        let _ = write!(s, " `{name}` |");
+    }
+    s += "\n|---|";
+    for _ in table {
+        s += "---|";
+    }
+    s += "\n";
+    let mut rows: Vec<Measure> = MEASURES.to_vec();
+    rows.push(("training time, s", |_| f64::NAN, 0));
+    for (label, f, p) in rows {
+        let _ = write!(s, "| {label} |");
+        for (_, runs) in table {
+            let v: Vec<f64> = if label.starts_with("training time") {
+                runs.iter().map(|r| r.seconds).collect()
+            } else {
+                runs.iter().map(|r| f(&r.report)).collect()
+            };
+            let (m, sd) = mean_std(&v);
+            let _ = write!(s, " {m:.p$} ± {sd:.p$} |");
+        }
+        s += "\n";
+    }
+    s += "\n## Goals met (issue 11), seed by seed\n\n| goal |";
+    for (name, _) in table {
+        let _ = write!(s, " `{name}` |");
+    }
+    s += "\n|---|";
+    for _ in table {
+        s += "---|";
+    }
+    s += "\n";
+    for (goal, ok) in GOALS {
+        let _ = write!(s, "| {goal} |");
+        for (_, runs) in table {
+            let marks: Vec<String> = runs
+                .iter()
+                .map(|r| format!("{}{}", r.seed, if ok(&r.report) { "✓" } else { "✗" }))
+                .collect();
+            let _ = write!(s, " {} |", marks.join(" "));
+        }
+        s += "\n";
+    }
+    s += "\n## Contact sheets (seed 0: 12 generated motions at frames 0, 30, 60, 90, 120)\n\n";
+    for (name, _) in table {
+        let _ = writeln!(s, "### `{name}`\n\n![{name}](images/results/{name}.png)\n");
+    }
+    s
+}
