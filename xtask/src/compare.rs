@@ -241,6 +241,19 @@ fn train_seconds(dir: &Path) -> Option<f64> {
     Some(secs)
 }
 
+/// A table's header row and rule: `first`, then one column per model.
+fn header(first: &str, table: &[(String, Vec<Run>)]) -> String {
+    let mut s = format!("| {first} |");
+    for (name, _) in table {
+        let _ = write!(s, " `{name}` |");
+    }
+    s += "\n|---|";
+    for _ in table {
+        s += "---|";
+    }
+    s + "\n"
+}
+
 fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
     let mut s = String::from("# Results: every model, several seeds\n\n");
     let _ = writeln!(
@@ -255,15 +268,7 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
         a.seeds,
         a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default()
     );
-    s += "| measure |";
-    for (name, _) in table {
-        let _ = write!(s, " `{name}` |");
-    }
-    s += "\n|---|";
-    for _ in table {
-        s += "---|";
-    }
-    s += "\n";
+    s += &header("measure", table);
     let mut rows: Vec<Measure> = MEASURES.to_vec();
     rows.push(("training time, s", |_| f64::NAN, 0));
     for (label, f, p) in rows {
@@ -279,15 +284,8 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
         }
         s += "\n";
     }
-    s += "\n## Goals met (issue 11), seed by seed\n\n| goal |";
-    for (name, _) in table {
-        let _ = write!(s, " `{name}` |");
-    }
-    s += "\n|---|";
-    for _ in table {
-        s += "---|";
-    }
-    s += "\n";
+    s += "\n## Goals met (issue 11), seed by seed\n\n";
+    s += &header("goal", table);
     for (goal, ok) in GOALS {
         let _ = write!(s, "| {goal} |");
         for (_, runs) in table {

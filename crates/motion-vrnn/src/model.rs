@@ -853,3 +853,97 @@ pub use blocks::kl::{kl_gaussians, kl_standard};
 pub fn default_device() -> Device {
     Device::cuda_if_available(0).unwrap_or(Device::Cpu)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Statistics that leave values as they are (mean 0, std 1).
+    fn identity_body() -> Body {
+        Body {
+            mean: vec![0.0; 58],
+            std: vec![1.0; 58],
+            bones: vec![1.0; BONES],
+            contact_height: 0.5,
+        }
+    }
+
+    fn row(v: &[f32]) -> Tensor {
+        Tensor::from_vec(v.to_vec(), (1, 1, 58), &Device::Cpu).unwrap()
+    }
+
+    #[test]
+    fn a_planted_foot_gives_the_root_velocity_that_keeps_it_in_place() {
+        let body = identity_body();
+        // Root moves by v = (0.5, 0.3) and turns by θ = 0.2; both toes stay
+        // where they were in the world: p_t = R(θ)⁻¹ (p_{t−1} − v).
+        let (v, th) = ([0.5f32, 0.3], 0.2f32);
+        let (s, c) = th.sin_cos();
+        let (mut prev, mut cur) = ([0f32; 58], [0f32; 58]);
+        for (toe, p) in [(4usize, [1.0f32, 2.0]), (8, [-1.0, 1.5])] {
+            let k = 1 + 3 * (toe - 1);
+            prev[k] = p[0];
+            prev[k + 2] = p[1];
+            let (dx, dz) = (p[0] - v[0], p[1] - v[1]);
+            // R(θ)·(x, z) = (c x + s z, −s x + c z); its inverse is R(−θ).
+            cur[k] = c * dx - s * dz;
+            cur[k + 2] = s * dx + c * dz;
+        }
+        cur[57] = th;
+        cur[55] = 9.0; // the decoded velocity, overruled by the planted feet
+        cur[56] = -9.0;
+        let logits = Tensor::new(&[[[30f32, 30.0]]], &Device::Cpu).unwrap();
+        let out = lock(&row(&prev), &row(&cur), &logits, &body)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        assert!(
+            (out[55] - v[0]).abs() < 1e-5 && (out[56] - v[1]).abs() < 1e-5,
+            "{:?}",
+            &out[55..]
+        );
+        // Feet in the air: the decoded velocity stays.
+        let up = Tensor::new(&[[[-30f32, -30.0]]], &Device::Cpu).unwrap();
+        let out = lock(&row(&prev), &row(&cur), &up, &body)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        assert!((out[55] - 9.0).abs() < 1e-4 && (out[56] + 9.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_planted_foot_stands_at_the_contact_height() {
+        let body = identity_body();
+        let mut x = [0f32; 58];
+        x[0] = 10.0; // hips height
+        x[1 + 3 * 3 + 1] = 3.0; // left toe 3 units up
+        x[1 + 3 * 7 + 1] = 7.0; // right toe
+        x[1 + 3 * 11 + 1] = 20.0; // head
+                                  // Left foot down, right foot up: everything moves by 0.5 − 3.
+        let logits = Tensor::new(&[[[30f32, -30.0]]], &Device::Cpu).unwrap();
+        let out = ground(&row(&x), &logits, &body)
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        for (k, want) in [
+            (0, 7.5f32),
+            (1 + 3 * 3 + 1, 0.5),
+            (1 + 3 * 7 + 1, 4.5),
+            (1 + 3 * 11 + 1, 17.5),
+        ] {
+            assert!(
+                (out[k] - want).abs() < 1e-4,
+                "feature {k}: {} vs {want}",
+                out[k]
+            );
+        }
+        // x and z stay.
+        assert_eq!(out[1 + 3 * 3], 0.0);
+    }
+}
