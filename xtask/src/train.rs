@@ -27,7 +27,7 @@ pub struct TrainArgs {
     /// Run directory (checkpoints, metrics, loss curve).
     #[arg(long, default_value = "runs/vrnn")]
     pub out: PathBuf,
-    /// The model (`paper`, `filtered`, `skeletal`, `motion`; see docs/training.md).
+    /// The model (`paper`, `smooth`, `skeletal`, `feet`, `fed`, `motion`; see docs/training.md).
     #[arg(long, default_value = motion_vrnn::model::DEFAULT_MODEL, value_parser = parse_model)]
     pub model: String,
     /// Override the model's latent filter pole (0: off).
@@ -249,7 +249,7 @@ pub fn plot_history(path: &Path, history: &[EpochMetrics]) -> Result<()> {
 /// (autograd), the oracle of the fused blocks.
 pub fn bench(models: &[String], batches: &[usize], steps: usize, reference: bool) -> Result<()> {
     use motion_vrnn::optim::Adam;
-    use motion_vrnn::train::{init_model, named_vars, noise, sharded};
+    use motion_vrnn::train::{feed_mask, init_model, named_vars, noise, sharded};
     use motion_vrnn::MotionModel;
     let device = motion_vrnn::model::default_device();
     let t = 128;
@@ -287,12 +287,15 @@ pub fn bench(models: &[String], batches: &[usize], steps: usize, reference: bool
                 let mut times = Vec::new();
                 for step in 0..steps + 2 {
                     let eps = noise(0, step as u64, t, b, model.latent, &device)?;
+                    // Models that feed back their own frames are timed at
+                    // their full share.
+                    let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, &device)?;
                     let start = std::time::Instant::now();
                     let grads = if path == "fused" {
-                        sharded(&m.model, &x, &eps, Some((1.0, &vars)))?.1
+                        sharded(&m.model, &x, &eps, feed.as_ref(), Some((1.0, &vars)))?.1
                     } else {
                         motion_vrnn::blocks::reference(|| {
-                            let l = m.model.losses(&x, &eps)?;
+                            let l = m.model.losses(&x, &eps, feed.as_ref())?;
                             ((&l.recon + &l.kl)? + &l.extra)?.backward().map(Some)
                         })?
                     };

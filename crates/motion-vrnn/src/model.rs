@@ -15,10 +15,10 @@
 //!
 //! [`Parts`] switches on what goes beyond the paper (all off is the paper's
 //! model, bit for bit the same losses and gradients as before):
-//! - `skeleton`: the decoder's 54 joint outputs are bone directions, placed
-//!   by forward kinematics with the window's bone lengths (training,
-//!   reconstruction) or the training set's mean skeleton (sampling), so
-//!   bones cannot stretch;
+//! - `skeleton`: each decoded bone (decoded joint minus decoded parent) is
+//!   rescaled to a fixed length by forward kinematics: the window's bone
+//!   lengths (training, reconstruction) or the start window's / the
+//!   training set's mean skeleton (sampling), so bones cannot stretch;
 //! - `latent_filter`: the decoder reads the latent through a causal
 //!   low-pass filter over time, so a per-step latent draw cannot make the
 //!   pose jump (the paper's "filter over time inside the model").
@@ -30,6 +30,7 @@ use crate::blocks::{
 };
 use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::VarBuilder;
+use mocap_ingest::skeleton::JOINT_PARENTS;
 use serde::{Deserialize, Serialize};
 
 /// Lower bound on every standard deviation (guards `log σ` and `1/σ²`).
@@ -96,6 +97,12 @@ pub struct Parts {
     /// (CMU units², summed like the reconstruction error; 0: off).
     #[serde(default)]
     pub feet: f64,
+    /// Scheduled sampling: the largest share of frames whose recurrence
+    /// input is the model's own one-step prediction instead of the real
+    /// frame (0: off). Training raises the share from 0 to this over the
+    /// first half of its epochs ([`crate::train::TrainConfig::feed_share`]).
+    #[serde(default)]
+    pub self_feed: f64,
 }
 
 impl Parts {
@@ -124,13 +131,18 @@ pub struct Body {
 pub const DEFAULT_MODEL: &str = "motion";
 
 /// The models `cargo xtask train --model NAME` knows, with what each adds.
-pub const MODELS: [(&str, &str); 5] = [
+pub const MODELS: [(&str, &str); 6] = [
     ("paper", "the paper's VRNN"),
     ("smooth", "the paper's VRNN, with causal low-pass filters on the decoder's latent and output"),
     ("skeletal", "the paper's VRNN, decoding bone directions placed by forward kinematics"),
     ("feet", "skeletal, with foot contacts predicted, the root moved by the planted feet, and a penalty on toes that slide in contact"),
-    ("motion", "smooth, skeletal and feet together"),
+    ("fed", "the paper's VRNN, trained on its own one-step predictions for half its frames (scheduled sampling)"),
+    ("motion", "smooth, skeletal, feet and fed together"),
 ];
+
+/// The largest share of frames fed back in the models that do (`fed`,
+/// `motion`).
+pub const SELF_FEED: f64 = 0.5;
 
 impl Config {
     /// The model called `name` in [`MODELS`].
@@ -153,10 +165,15 @@ impl Config {
                 foot_lock: true,
                 ..skeletal
             },
+            "fed" => Parts {
+                self_feed: SELF_FEED,
+                ..Parts::default()
+            },
             "motion" => Parts {
                 skeleton: true,
                 feet: 1.0,
                 foot_lock: true,
+                self_feed: SELF_FEED,
                 ..smooth
             },
             _ => return None,
@@ -252,8 +269,10 @@ pub trait MotionModel: Send + Sync {
     /// The model's configuration (saved in checkpoints).
     fn config(&self) -> &Config;
     /// Losses of `x: [B, T, input]` with reparameterisation noise
-    /// `eps: [T, B, latent]`.
-    fn losses(&self, x: &Tensor, eps: &Tensor) -> Result<Losses>;
+    /// `eps: [T, B, latent]`. With `feed: [B, T]` (0 or 1), the frames
+    /// marked 1 reach the recurrence as the model's own prediction
+    /// (scheduled sampling); the encoder and the loss still see `x`.
+    fn losses(&self, x: &Tensor, eps: &Tensor, feed: Option<&Tensor>) -> Result<Losses>;
     /// Reconstructions `[B, T, input]` of real windows: posterior mean,
     /// decoder mean, real frames fed to the recurrence.
     fn reconstruct(&self, x: &Tensor) -> Result<Tensor>;
@@ -307,6 +326,9 @@ pub struct Vrnn {
     w_hh: Tensor,
     b_ih: Tensor,
     b_hh: Tensor,
+    /// Skeleton part: the constant affine map from decoded normalised
+    /// `[root height | 18 joints]` to the 18 bone vectors (CMU units).
+    bone_map: Option<Lin>,
 }
 
 /// What the recurrence gives per row.
@@ -363,6 +385,10 @@ impl Vrnn {
             w_hh: rnn.get((h4, c.hidden), "weight_hh_l0")?,
             b_ih: rnn.get(h4, "bias_ih_l0")?,
             b_hh: rnn.get(h4, "bias_hh_l0")?,
+            bone_map: match &c.body {
+                Some(body) if c.parts.skeleton => Some(bone_map(body, vb.device())?),
+                _ => None,
+            },
         })
     }
 
@@ -379,19 +405,39 @@ impl Vrnn {
     }
 
     /// The recurrence over whole sequences `x: [B, T, input]` with noise
-    /// `eps: [B, T, Z]`.
-    fn scan(&self, x: &Tensor, eps: &Tensor) -> Result<Scan> {
+    /// `eps: [B, T, Z]`; the LSTM reads `fed` instead of `x` where given
+    /// (scheduled sampling), the posterior always reads `x`.
+    fn scan(&self, x: &Tensor, fed: Option<&Tensor>, eps: &Tensor) -> Result<Scan> {
         let c = &self.config;
         let (e2, h, z) = (c.extractor[1], c.hidden, c.latent);
         let feat = self.features(x)?;
         // What does not depend on the recurrence, for all rows at once: the
         // x'' halves of the posterior and of the LSTM input product.
         let enc = stacked(&self.encoder[0], &self.encoder[1])?;
-        let pre = Lin {
-            w: Tensor::cat(&[&enc.w.narrow(1, 0, e2)?, &self.w_ih.narrow(1, 0, e2)?], 0)?,
-            b: Tensor::cat(&[&enc.b, &(&self.b_ih + &self.b_hh)?], 0)?,
+        let (enc_x, gates_x) = (
+            Lin {
+                w: enc.w.narrow(1, 0, e2)?,
+                b: enc.b.clone(),
+            },
+            Lin {
+                w: self.w_ih.narrow(1, 0, e2)?,
+                b: (&self.b_ih + &self.b_hh)?,
+            },
+        );
+        let pre = match fed {
+            None => Lin {
+                w: Tensor::cat(&[&enc_x.w, &gates_x.w], 0)?,
+                b: Tensor::cat(&[&enc_x.b, &gates_x.b], 0)?,
+            }
+            .forward(&feat, Act::None)?,
+            Some(f) => Tensor::cat(
+                &[
+                    enc_x.forward(&feat, Act::None)?,
+                    gates_x.forward(&self.features(f)?, Act::None)?,
+                ],
+                D::Minus1,
+            )?,
         };
-        let pre = pre.forward(&feat, Act::None)?;
         let w = Tensor::cat(
             &[
                 enc.w.narrow(1, e2, h)?.flatten_all()?,
@@ -480,14 +526,19 @@ impl Vrnn {
         }
     }
 
-    /// Skeleton part: decoder outputs `[y | 18 bone directions | velocities]`
-    /// (y and velocities normalised) → the 58 normalised features.
+    /// Skeleton part: decoder outputs (the 58 normalised features, as in
+    /// the paper) → each decoded bone (joint minus parent) rescaled to its
+    /// length by forward kinematics → the 58 normalised features.
     fn place(&self, o: &Tensor, body: &Body, lengths: &Tensor) -> Result<Tensor> {
         let dev = o.device();
         let j = 3 * BONES;
         let yn = o.narrow(D::Minus1, 0, 1)?;
         let y = ((&yn * body.std[0] as f64)? + body.mean[0] as f64)?;
-        let p = forward_kinematics(&y, &o.narrow(D::Minus1, 1, j)?, lengths)?;
+        let dirs = match &self.bone_map {
+            Some(m) => m.forward(&o.narrow(D::Minus1, 0, 1 + j)?, Act::None)?,
+            None => o.narrow(D::Minus1, 1, j)?,
+        };
+        let p = forward_kinematics(&y, &dirs, lengths)?;
         let mean = Tensor::new(&body.mean[1..1 + j], dev)?;
         let std = Tensor::new(&body.std[1..1 + j], dev)?;
         let pn = p.broadcast_sub(&mean)?.broadcast_div(&std)?;
@@ -542,6 +593,32 @@ impl Vrnn {
         Tensor::from_vec(out, (b, t, BONES), x.device()).map(Some)
     }
 
+    /// Scheduled sampling: `x` with the frames where `mask: [B, T]` is 1
+    /// replaced by the model's own one-step prediction, as sampling makes
+    /// it (latent drawn from the prior, `N(0, I)` at the first step, with
+    /// the same noise; state from the real frames before; the whole
+    /// decoder). No gradient flows through the replacement.
+    fn fed_back(
+        &self,
+        x: &Tensor,
+        eps: &Tensor,
+        mask: &Tensor,
+        lengths: Option<&Tensor>,
+    ) -> Result<Tensor> {
+        let t = x.dim(1)?;
+        let s = self.scan(x, None, eps)?;
+        let p = stacked(&self.prior[0], &self.prior[1])?.forward(&s.h, Act::None)?;
+        let z = draw(&p, eps, self.config.latent)?;
+        let z = if t > 1 {
+            Tensor::cat(&[&eps.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
+        } else {
+            eps.clone()
+        };
+        let own = self.decode(&z, &s.h, lengths)?.0.detach();
+        let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
+        x + ((own - x)? * m)?
+    }
+
     /// The mean skeleton for `b` sequences (sampling): `[b, 18]`.
     fn mean_bones(&self, b: usize, device: &Device) -> Result<Option<Tensor>> {
         match self
@@ -565,13 +642,17 @@ impl MotionModel for Vrnn {
         &self.config
     }
 
-    fn losses(&self, x: &Tensor, eps: &Tensor) -> Result<Losses> {
+    fn losses(&self, x: &Tensor, eps: &Tensor, feed: Option<&Tensor>) -> Result<Losses> {
         let b = x.dim(0)? as f64;
         let eps = eps.transpose(0, 1)?.contiguous()?;
-        let s = self.scan(x, &eps)?;
+        let lengths = self.window_bones(x)?;
+        let fed = match feed {
+            Some(mask) => Some(self.fed_back(x, &eps, mask, lengths.as_ref())?),
+            None => None,
+        };
+        let s = self.scan(x, fed.as_ref(), &eps)?;
         let p = stacked(&self.prior[0], &self.prior[1])?.forward(&s.h, Act::None)?;
         let kl = gaussian_kl(&s.q, &p)?;
-        let lengths = self.window_bones(x)?;
         let (x_hat, logits) = self.decode(&s.z, &s.h, lengths.as_ref())?;
         let recon = squared_error(&x_hat, x)?;
         let mut extra = Tensor::zeros((), DType::F32, x.device())?;
@@ -594,7 +675,7 @@ impl MotionModel for Vrnn {
         let (b, t, _) = x.dims3()?;
         let zero = Tensor::zeros((b, t, self.config.latent), DType::F32, x.device())?;
         // With ε = 0 the posterior sample is its mean.
-        let s = self.scan(x, &zero)?;
+        let s = self.scan(x, None, &zero)?;
         let lengths = self.window_bones(x)?;
         Ok(self.decode(&s.z, &s.h, lengths.as_ref())?.0)
     }
@@ -625,13 +706,6 @@ impl MotionModel for Vrnn {
         let mut cell = h.clone();
         let (mut zf, mut of): (Option<Tensor>, Option<Tensor>) = (None, None);
         let mut frames = Vec::with_capacity(t);
-        // A Gaussian head's `[μ | logit σ]` and noise → a draw.
-        let draw = |p: &Tensor, e: &Tensor| -> Result<Tensor> {
-            let mu = p.narrow(1, 0, c.latent)?;
-            let sigma = candle_nn::ops::sigmoid(&p.narrow(1, c.latent, c.latent)?)?
-                .clamp(SIGMA_MIN, 1.0)?;
-            mu + (sigma * e)?
-        };
         // One step of a causal filter with pole `rho` (the first value as is).
         let step_filter = |prev: &Option<Tensor>, x: Tensor, rho: f64| -> Result<Tensor> {
             match prev {
@@ -648,10 +722,10 @@ impl MotionModel for Vrnn {
                     let x = s.narrow(1, step, 1)?.squeeze(1)?;
                     let feat = self.features(&x)?;
                     let q = encoder.forward(&Tensor::cat(&[&feat, &h], 1)?, Act::None)?;
-                    (Some((x, feat)), draw(&q, &e)?)
+                    (Some((x, feat)), draw(&q, &e, c.latent)?)
                 }
                 None if step == 0 => (None, e),
-                None => (None, draw(&prior.forward(&h, Act::None)?, &e)?),
+                None => (None, draw(&prior.forward(&h, Act::None)?, &e, c.latent)?),
             };
             let zd = step_filter(&zf, z.clone(), rho)?;
             // The decoder runs on start frames too, so its output filter has
@@ -683,6 +757,47 @@ impl MotionModel for Vrnn {
         }
         Tensor::stack(&frames, 1)
     }
+}
+
+/// The skeleton part's bone map: `W: [54, 55]`, `b: [54]` such that
+/// `W·[ŷ | p̂] + b` is, for each bone, the denormalised decoded joint minus
+/// its denormalised parent (the root at `(0, y, 0)`).
+fn bone_map(body: &Body, dev: &Device) -> Result<Lin> {
+    let (n, j) = (3 * BONES, 1 + 3 * BONES);
+    let (mut w, mut b) = (vec![0.0f32; n * j], vec![0.0f32; n]);
+    for bone in 0..BONES {
+        let joint = bone + 1;
+        for k in 0..3 {
+            let (row, col) = (3 * bone + k, 1 + 3 * bone + k);
+            w[row * j + col] += body.std[col];
+            b[row] += body.mean[col];
+            match JOINT_PARENTS[joint] {
+                Some(p) if p > 0 => {
+                    let pc = 1 + 3 * (p - 1) + k;
+                    w[row * j + pc] -= body.std[pc];
+                    b[row] -= body.mean[pc];
+                }
+                _ if k == 1 => {
+                    w[row * j] -= body.std[0];
+                    b[row] -= body.mean[0];
+                }
+                _ => {}
+            }
+        }
+    }
+    Ok(Lin {
+        w: Tensor::from_vec(w, (n, j), dev)?,
+        b: Tensor::from_vec(b, n, dev)?,
+    })
+}
+
+/// A draw from a Gaussian head's `[μ | logit σ]` (last dimension `2Z`)
+/// with noise `e`.
+fn draw(p: &Tensor, e: &Tensor, latent: usize) -> Result<Tensor> {
+    let mu = p.narrow(D::Minus1, 0, latent)?;
+    let sigma =
+        candle_nn::ops::sigmoid(&p.narrow(D::Minus1, latent, latent)?)?.clamp(SIGMA_MIN, 1.0)?;
+    mu + (sigma * e)?
 }
 
 /// Toe height under which a foot is on the floor (CMU units: 5 cm).

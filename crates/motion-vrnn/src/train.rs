@@ -129,6 +129,35 @@ impl TrainConfig {
             ((epoch + 1) as f64 / self.kl_warmup_epochs as f64).min(1.0)
         }
     }
+
+    /// Share of frames fed back in `epoch` (0-based; scheduled sampling):
+    /// rises linearly from 0 to the model's `self_feed` over the first half
+    /// of the epochs.
+    pub fn feed_share(&self, epoch: usize) -> f64 {
+        let ramp = (self.epochs / 2).max(1);
+        self.model.parts.self_feed * ((epoch + 1) as f64 / ramp as f64).min(1.0)
+    }
+}
+
+/// The scheduled-sampling mask of a step: `[B, T]`, each frame 1 with
+/// probability `share` (None when `share` is 0), from the run's seed and
+/// the step, so it is the same for any thread count and after a resume.
+pub fn feed_mask(
+    seed: u64,
+    step: u64,
+    b: usize,
+    t: usize,
+    share: f64,
+    device: &Device,
+) -> candle_core::Result<Option<Tensor>> {
+    if share <= 0.0 {
+        return Ok(None);
+    }
+    let mut rng = Rng::new(seed ^ 0xFEED_0000_0000, step);
+    let v: Vec<f32> = (0..b * t)
+        .map(|_| if rng.uniform() < share { 1.0 } else { 0.0 })
+        .collect();
+    Tensor::from_vec(v, (b, t), device).map(Some)
 }
 
 /// One epoch's metrics (a line of `metrics.jsonl`). Losses are summed over
@@ -271,12 +300,13 @@ pub fn sharded(
     model: &dyn MotionModel,
     x: &Tensor,
     eps: &Tensor,
+    feed: Option<&Tensor>,
     grad: Option<(f64, &[Var])>,
 ) -> candle_core::Result<((f32, f32), Option<GradStore>)> {
     let b = x.dim(0)?;
     type Part = ((f64, f64), Vec<Option<Tensor>>);
-    let run = |x: &Tensor, eps: &Tensor| -> candle_core::Result<Part> {
-        let l: Losses = model.losses(x, eps)?;
+    let run = |x: &Tensor, eps: &Tensor, feed: Option<&Tensor>| -> candle_core::Result<Part> {
+        let l: Losses = model.losses(x, eps, feed)?;
         let n = x.dim(0)? as f64;
         let scale = n / b as f64;
         let grads = match grad {
@@ -290,14 +320,15 @@ pub fn sharded(
         Ok(((r as f64 * scale, k as f64 * scale), grads))
     };
     let parts: Vec<Part> = if !x.device().is_cpu() || b <= SHARD {
-        vec![run(x, eps)?]
+        vec![run(x, eps, feed)?]
     } else {
         let starts: Vec<usize> = (0..b).step_by(SHARD).collect();
         starts
             .par_iter()
             .map(|&s| {
                 let n = SHARD.min(b - s);
-                run(&x.narrow(0, s, n)?, &eps.narrow(1, s, n)?)
+                let feed = feed.map(|f| f.narrow(0, s, n)).transpose()?;
+                run(&x.narrow(0, s, n)?, &eps.narrow(1, s, n)?, feed.as_ref())
             })
             .collect::<candle_core::Result<_>>()?
     };
@@ -349,7 +380,7 @@ pub fn evaluate(
             model.config().latent,
             device,
         )?;
-        let (r, k) = sharded(model, &x, &eps, None)?.0;
+        let (r, k) = sharded(model, &x, &eps, None, None)?.0;
         let w = chunk.len() as f64;
         recon += r as f64 * w;
         kl += k as f64 * w;
@@ -532,7 +563,16 @@ pub fn train(
                 config.model.latent,
                 device,
             )?;
-            let ((r, k), grads) = sharded(&t.model, &x, &eps, Some((kl_w, &var_list)))?;
+            let feed = feed_mask(
+                config.seed,
+                step,
+                chunk.len(),
+                train.length,
+                config.feed_share(epoch),
+                device,
+            )?;
+            let ((r, k), grads) =
+                sharded(&t.model, &x, &eps, feed.as_ref(), Some((kl_w, &var_list)))?;
             if !(r.is_finite() && k.is_finite()) {
                 return Err(TrainError::NonFinite {
                     step,

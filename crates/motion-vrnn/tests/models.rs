@@ -6,7 +6,7 @@ use candle_core::{Device, Tensor, Var};
 use motion_vrnn::blocks;
 use motion_vrnn::model::MODELS;
 use motion_vrnn::rng::Rng;
-use motion_vrnn::train::{init_model, named_vars, noise, sharded, Trained};
+use motion_vrnn::train::{feed_mask, init_model, named_vars, noise, sharded, Trained};
 use motion_vrnn::{Config, MotionModel};
 
 fn rel(a: &[f32], b: &[f32]) -> f64 {
@@ -44,9 +44,17 @@ fn sorted_vars(t: &Trained) -> Vec<(String, Var)> {
     v
 }
 
+/// The scheduled-sampling mask a model is trained with at its full share
+/// (None for models that do not feed back).
+fn feed(m: &Trained, x: &Tensor) -> Option<Tensor> {
+    let (b, t, _) = x.dims3().unwrap();
+    let share = m.model.config().parts.self_feed;
+    feed_mask(9, 1, b, t, share, &Device::Cpu).unwrap()
+}
+
 fn grads(t: &Trained, x: &Tensor, eps: &Tensor, w: f64) -> ((f32, f32), Vec<Vec<f32>>) {
     let vars: Vec<Var> = sorted_vars(t).into_iter().map(|v| v.1).collect();
-    let (l, g) = sharded(&t.model, x, eps, Some((w, &vars))).unwrap();
+    let (l, g) = sharded(&t.model, x, eps, feed(t, x).as_ref(), Some((w, &vars))).unwrap();
     let g = g.unwrap();
     let v = vars
         .iter()
@@ -113,8 +121,9 @@ fn every_model_matches_autograd() {
         let m = model(name, 4);
         let vars = sorted_vars(&m);
         let (x, eps) = batch(5, 9, 12);
+        let fed = feed(&m, &x);
         let loss = |m: &dyn MotionModel| {
-            let l = m.losses(&x, &eps).unwrap();
+            let l = m.losses(&x, &eps, fed.as_ref()).unwrap();
             ((&l.recon + (&l.kl * 0.5).unwrap()).unwrap() + &l.extra).unwrap()
         };
         let fused = loss(&m.model);
@@ -167,6 +176,69 @@ fn every_model_matches_autograd() {
             flat(&sf.narrow(1, 2, 7).unwrap())
         );
     }
+}
+
+/// Scheduled sampling: a mask of zeros gives the teacher-forced losses;
+/// feeding back every frame changes them (the recurrence reads the model's
+/// own frames) but not the first step's KL, whose state is still the
+/// initial one.
+#[test]
+fn fed_back_frames_reach_the_recurrence_only() {
+    for name in ["fed", "motion"] {
+        let m = model(name, 5);
+        let (x, eps) = batch(3, 7, 14);
+        let losses = |mask: Option<f32>| {
+            let f = mask.map(|v| Tensor::full(v, (3, 7), &Device::Cpu).unwrap());
+            let l = m.model.losses(&x, &eps, f.as_ref()).unwrap();
+            (
+                l.recon.to_scalar::<f32>().unwrap(),
+                l.kl.to_scalar::<f32>().unwrap(),
+            )
+        };
+        let (none, zeros, ones) = (losses(None), losses(Some(0.0)), losses(Some(1.0)));
+        assert!(
+            ((none.0 - zeros.0) / none.0).abs() < 1e-6,
+            "{name}: {none:?} vs {zeros:?}"
+        );
+        assert!(
+            ((none.1 - zeros.1) / none.1).abs() < 1e-6,
+            "{name}: {none:?} vs {zeros:?}"
+        );
+        assert!(
+            (none.1 - ones.1).abs() > 1e-3 * none.1,
+            "{name}: {none:?} vs {ones:?}"
+        );
+        assert_ne!(none.0, ones.0, "{name}");
+        // One frame: nothing is fed back before the only step.
+        let (x1, e1) = (x.narrow(1, 0, 1).unwrap(), eps.narrow(0, 0, 1).unwrap());
+        let one = Tensor::ones((3, 1), candle_core::DType::F32, &Device::Cpu).unwrap();
+        let (a, b) = (
+            m.model.losses(&x1, &e1, None).unwrap(),
+            m.model.losses(&x1, &e1, Some(&one)).unwrap(),
+        );
+        assert_eq!(
+            a.kl.to_scalar::<f32>().unwrap(),
+            b.kl.to_scalar::<f32>().unwrap(),
+            "{name}"
+        );
+    }
+}
+
+/// The mask has the share asked for, and is a pure function of seed and step.
+#[test]
+fn feed_masks_have_their_share() {
+    let m = feed_mask(1, 2, 40, 128, 0.3, &Device::Cpu)
+        .unwrap()
+        .unwrap();
+    let v = m.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let share = v.iter().sum::<f32>() / v.len() as f32;
+    assert!((share - 0.3).abs() < 0.02, "{share}");
+    assert!(v.iter().all(|&x| x == 0.0 || x == 1.0));
+    let again = feed_mask(1, 2, 40, 128, 0.3, &Device::Cpu)
+        .unwrap()
+        .unwrap();
+    assert_eq!(v, again.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+    assert!(feed_mask(1, 2, 4, 4, 0.0, &Device::Cpu).unwrap().is_none());
 }
 
 /// The losses and gradients of a batch are bit for bit the same with 1 and
