@@ -286,3 +286,56 @@ fn sample_and_eval_write_what_they_promise() {
         .collect();
     assert!(firsts.len() > 1, "every motion starts from the same pose");
 }
+
+/// Every named model trains (one epoch), records itself in its checkpoint,
+/// and goes through `sample` and `eval`; models with the skeleton part
+/// generate rigid bones.
+#[test]
+fn every_model_trains_samples_and_evaluates() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    small_dataset(&six_takes(tmp.path()), &ds);
+    for (name, _) in motion_vrnn::model::MODELS {
+        let run = tmp.path().join(name);
+        let ok = xtask()
+            .args(["train", "--quiet", "--batch", "8", "--epochs", "1"])
+            .args(["--model", name, "--data"])
+            .arg(&ds)
+            .arg("--out")
+            .arg(&run)
+            .status()
+            .unwrap();
+        assert!(ok.success(), "{name}: train");
+        let meta: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(run.join("last/checkpoint.json")).unwrap(),
+        )
+        .unwrap();
+        let config: motion_vrnn::Config =
+            serde_json::from_value(meta["config"]["model"].clone()).unwrap();
+        assert_eq!(config.name(), Some(name), "{name}: checkpoint");
+        for cmd in [
+            vec!["sample", "--n", "2", "--frames", "24", "--split", "val"],
+            vec!["eval", "--split", "val"],
+        ] {
+            let o = xtask().args(&cmd).arg("--run").arg(&run).output().unwrap();
+            assert!(
+                o.status.success(),
+                "{name} {}: {}",
+                cmd[0],
+                String::from_utf8_lossy(&o.stderr)
+            );
+        }
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run.join("eval/eval.json")).unwrap())
+                .unwrap();
+        let cv = v["generated"]["bone_cv"].as_f64().unwrap();
+        assert!(cv.is_finite(), "{name}");
+        if config.parts.skeleton {
+            assert!(cv < 1e-4, "{name}: bone cv {cv}");
+        } else {
+            assert!(cv > 1e-4, "{name}: bone cv {cv}");
+        }
+        assert!(run.join("samples/contact_sheet.png").exists(), "{name}");
+    }
+}

@@ -148,7 +148,7 @@ impl Config {
     /// The model called `name` in [`MODELS`].
     pub fn named(name: &str) -> Option<Config> {
         let smooth = Parts {
-            latent_filter: 0.8,
+            latent_filter: 0.9,
             output_filter: 0.8,
             ..Parts::default()
         };
@@ -1028,6 +1028,76 @@ mod tests {
             .to_vec1::<f32>()
             .unwrap();
         assert!((out[55] - 9.0).abs() < 1e-4 && (out[56] + 9.0).abs() < 1e-4);
+    }
+
+    /// A pose of 19 joints (root height 9, joints spread out), as features.
+    fn pose() -> Vec<f32> {
+        let mut x = vec![0f32; 58];
+        x[0] = 9.0;
+        for j in 1..=BONES {
+            let k = 1 + 3 * (j - 1);
+            let f = j as f32;
+            x[k] = (0.7 * f).sin() * 3.0;
+            x[k + 1] = 9.0 - 0.4 * f;
+            x[k + 2] = (0.3 * f).cos() * 2.0;
+        }
+        x
+    }
+
+    #[test]
+    fn the_bone_map_gives_each_joint_minus_its_parent() {
+        // Statistics that are not the identity: raw = 2·n + 1.
+        let body = Body {
+            mean: vec![1.0; 58],
+            std: vec![2.0; 58],
+            ..identity_body()
+        };
+        let raw = pose();
+        let n: Vec<f32> = raw.iter().map(|v| (v - 1.0) / 2.0).collect();
+        let m = bone_map(&body, &Device::Cpu).unwrap();
+        let x = Tensor::from_vec(n[..55].to_vec(), (1, 55), &Device::Cpu).unwrap();
+        let d = m.forward(&x, Act::None).unwrap().flatten_all().unwrap();
+        let d = d.to_vec1::<f32>().unwrap();
+        for j in 1..=BONES {
+            let at = |j: usize, k: usize| match j {
+                0 if k == 1 => raw[0],
+                0 => 0.0,
+                _ => raw[1 + 3 * (j - 1) + k],
+            };
+            let parent = JOINT_PARENTS[j].unwrap_or(0);
+            for k in 0..3 {
+                let want = at(j, k) - at(parent, k);
+                let got = d[3 * (j - 1) + k];
+                assert!(
+                    (got - want).abs() < 1e-5,
+                    "bone {j} axis {k}: {got} vs {want}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_skeleton_leaves_a_pose_with_the_right_bones_unchanged() {
+        let mut c = Config::named("skeletal").unwrap();
+        c.body = Some(identity_body());
+        let m = crate::train::init_model(&c, 1, &Device::Cpu).unwrap().model;
+        let x = pose();
+        let lengths = bone_lengths(&x[..1], &x[1..55]);
+        let l = Tensor::from_vec(lengths.clone(), (1, 1, BONES), &Device::Cpu).unwrap();
+        let out = m.place(&row(&x), &identity_body(), &l).unwrap();
+        let out = out.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        for (k, (a, b)) in out.iter().zip(&x).enumerate() {
+            assert!((a - b).abs() < 1e-4, "feature {k}: {a} vs {b}");
+        }
+        // Longer bones: each joint moves away from its parent along the
+        // same direction, so the bone's direction is kept.
+        let l2 = (l * 2.0).unwrap();
+        let out = m.place(&row(&x), &identity_body(), &l2).unwrap();
+        let out = out.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let got = bone_lengths(&out[..1], &out[1..55]);
+        for (b, (g, w)) in got.iter().zip(&lengths).enumerate() {
+            assert!((g - 2.0 * w).abs() < 1e-3, "bone {b}: {g} vs {}", 2.0 * w);
+        }
     }
 
     #[test]
