@@ -172,6 +172,7 @@ pub fn run(a: CompareArgs) -> Result<()> {
                     latent_filter: None,
                     output_filter: None,
                     feet_weight: None,
+                    kl_weight: None,
                     preset: Preset::Standard,
                     epochs: a.epochs,
                     batch: None,
@@ -268,6 +269,15 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
         a.seeds,
         a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default()
     );
+    s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
+    for (name, _) in table {
+        let what = motion_vrnn::model::MODELS
+            .iter()
+            .find(|m| m.0 == name)
+            .map_or("", |m| m.1);
+        let _ = writeln!(s, "- `{name}`: {what}");
+    }
+    s += "\n";
     s += &header("measure", table);
     let mut rows: Vec<Measure> = MEASURES.to_vec();
     rows.push(("training time, s", |_| f64::NAN, 0));

@@ -39,6 +39,9 @@ pub struct TrainArgs {
     /// Override the weight of the model's foot-slide penalty (0: off).
     #[arg(long)]
     pub feet_weight: Option<f64>,
+    /// Override the model's KL weight after warm-up (1: the ELBO).
+    #[arg(long)]
+    pub kl_weight: Option<f64>,
     /// Starting point for every option below.
     #[arg(long, value_enum, default_value_t = Preset::Standard)]
     pub preset: Preset,
@@ -124,6 +127,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     if let Some(v) = a.feet_weight {
         parts.feet = v;
+    }
+    if let Some(v) = a.kl_weight {
+        parts.kl_weight = (v != 1.0).then_some(v);
     }
     if let Some(v) = a.epochs {
         cfg.epochs = v;

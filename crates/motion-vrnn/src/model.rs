@@ -103,6 +103,10 @@ pub struct Parts {
     /// first half of its epochs ([`crate::train::TrainConfig::feed_share`]).
     #[serde(default)]
     pub self_feed: f64,
+    /// Weight of the KL term once warmed up (None: 1, the ELBO). Below 1
+    /// the latent may carry more of each motion (a β-VAE with β < 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kl_weight: Option<f64>,
 }
 
 impl Parts {
@@ -134,7 +138,7 @@ pub const DEFAULT_MODEL: &str = "motion";
 pub const MODELS: [(&str, &str); 6] = [
     ("paper", "the paper's VRNN"),
     ("smooth", "the paper's VRNN, with causal low-pass filters on the decoder's latent and output"),
-    ("skeletal", "the paper's VRNN, decoding bone directions placed by forward kinematics"),
+    ("skeletal", "the paper's VRNN, each decoded bone rescaled to a fixed length by forward kinematics"),
     ("feet", "skeletal, with foot contacts predicted, the root moved by the planted feet, and a penalty on toes that slide in contact"),
     ("fed", "the paper's VRNN, trained on its own one-step predictions for half its frames (scheduled sampling)"),
     ("motion", "smooth, skeletal, feet and fed together"),
@@ -358,6 +362,11 @@ impl Vrnn {
         ] {
             if !(0.0..1.0).contains(&rho) {
                 candle_core::bail!("{what} must be in [0, 1), got {rho}");
+            }
+        }
+        if let Some(w) = c.parts.kl_weight {
+            if !(w.is_finite() && w > 0.0) {
+                candle_core::bail!("kl_weight must be positive, got {w}");
             }
         }
         let gaussian = |input: usize, vb: VarBuilder| -> Result<[Lin; 2]> {

@@ -123,10 +123,11 @@ impl TrainConfig {
 
     /// KL weight in `epoch` (0-based).
     pub fn kl_weight(&self, epoch: usize) -> f64 {
+        let full = self.model.parts.kl_weight.unwrap_or(1.0);
         if self.kl_warmup_epochs == 0 {
-            1.0
+            full
         } else {
-            ((epoch + 1) as f64 / self.kl_warmup_epochs as f64).min(1.0)
+            full * ((epoch + 1) as f64 / self.kl_warmup_epochs as f64).min(1.0)
         }
     }
 

@@ -134,22 +134,12 @@ fn every_model_matches_autograd() {
         );
         assert!(((a - r) / r).abs() < 1e-5, "{name}: loss {a} vs {r}");
         let (gf, gr) = (fused.backward().unwrap(), reference.backward().unwrap());
+        let of = |g: &candle_core::backprop::GradStore, v: &Var| -> Vec<f32> {
+            let t = g.get(v).unwrap().flatten_all().unwrap();
+            t.to_vec1::<f32>().unwrap()
+        };
         for (n, v) in &vars {
-            let f = gf
-                .get(v)
-                .unwrap()
-                .flatten_all()
-                .unwrap()
-                .to_vec1::<f32>()
-                .unwrap();
-            let r = gr
-                .get(v)
-                .unwrap()
-                .flatten_all()
-                .unwrap()
-                .to_vec1::<f32>()
-                .unwrap();
-            let e = rel(&f, &r);
+            let e = rel(&of(&gf, v), &of(&gr, v));
             assert!(e < 1e-4, "{name}: {n} gradient off by {e:e}");
         }
         // Reconstruction and sampling: the fused path equals the reference.
@@ -312,4 +302,25 @@ fn skeleton_models_keep_their_bones() {
             }
         }
     }
+}
+
+/// The KL weight warms up linearly to the model's own weight (1 unless the
+/// model says otherwise); the share fed back rises to the model's over the
+/// first half of the epochs.
+#[test]
+fn schedules_follow_the_model() {
+    let mut c = motion_vrnn::train::TrainConfig::standard();
+    c.kl_warmup_epochs = 20;
+    c.epochs = 400;
+    assert_eq!(c.kl_weight(9), 0.5);
+    assert_eq!(c.kl_weight(30), 1.0);
+    c.model.parts.kl_weight = Some(0.4);
+    assert!((c.kl_weight(9) - 0.2).abs() < 1e-12);
+    assert!((c.kl_weight(300) - 0.4).abs() < 1e-12);
+    c.model.parts.self_feed = 0.5;
+    assert!((c.feed_share(99) - 0.25).abs() < 1e-12);
+    assert_eq!(c.feed_share(199), 0.5);
+    assert_eq!(c.feed_share(399), 0.5);
+    c.model.parts.self_feed = 0.0;
+    assert_eq!(c.feed_share(399), 0.0);
 }
