@@ -23,6 +23,7 @@
 //!   low-pass filter over time, so a per-step latent draw cannot make the
 //!   pose jump (the paper's "filter over time inside the model").
 
+use crate::blocks::feet::{self, ground, lock, TOES};
 use crate::blocks::scan::ScanDims;
 use crate::blocks::skeleton::{bone_lengths, forward_kinematics, BONES};
 use crate::blocks::{
@@ -129,6 +130,17 @@ pub struct Body {
     /// windows (CMU units; where the foot lock puts a planted toe).
     #[serde(default)]
     pub contact_height: f32,
+}
+
+impl Body {
+    /// What the foot lock needs of it.
+    pub fn stats(&self) -> feet::Stats<'_> {
+        feet::Stats {
+            mean: &self.mean,
+            std: &self.std,
+            contact_height: self.contact_height,
+        }
+    }
 }
 
 /// The model `cargo xtask train` trains unless told otherwise.
@@ -364,6 +376,9 @@ impl Vrnn {
                 candle_core::bail!("{what} must be in [0, 1), got {rho}");
             }
         }
+        if !(0.0..=1.0).contains(&c.parts.self_feed) {
+            candle_core::bail!("self_feed must be in [0, 1], got {}", c.parts.self_feed);
+        }
         if let Some(w) = c.parts.kl_weight {
             if !(w.is_finite() && w > 0.0) {
                 candle_core::bail!("kl_weight must be positive, got {w}");
@@ -413,13 +428,13 @@ impl Vrnn {
         self.phi_x[1].forward(&a, Act::Relu)
     }
 
-    /// The recurrence over whole sequences `x: [B, T, input]` with noise
-    /// `eps: [B, T, Z]`; the LSTM reads `fed` instead of `x` where given
-    /// (scheduled sampling), the posterior always reads `x`.
-    fn scan(&self, x: &Tensor, fed: Option<&Tensor>, eps: &Tensor) -> Result<Scan> {
+    /// The recurrence over whole sequences with noise `eps: [B, T, Z]`,
+    /// from the features `feat = features(x)` of `x: [B, T, input]`; the LSTM
+    /// reads `fed` instead of `x` where given (scheduled sampling), the
+    /// posterior always reads `x`.
+    fn scan(&self, feat: &Tensor, fed: Option<&Tensor>, eps: &Tensor) -> Result<Scan> {
         let c = &self.config;
         let (e2, h, z) = (c.extractor[1], c.hidden, c.latent);
-        let feat = self.features(x)?;
         // What does not depend on the recurrence, for all rows at once: the
         // x'' halves of the posterior and of the LSTM input product.
         let enc = stacked(&self.encoder[0], &self.encoder[1])?;
@@ -438,10 +453,10 @@ impl Vrnn {
                 w: Tensor::cat(&[&enc_x.w, &gates_x.w], 0)?,
                 b: Tensor::cat(&[&enc_x.b, &gates_x.b], 0)?,
             }
-            .forward(&feat, Act::None)?,
+            .forward(feat, Act::None)?,
             Some(f) => Tensor::cat(
                 &[
-                    enc_x.forward(&feat, Act::None)?,
+                    enc_x.forward(feat, Act::None)?,
                     gates_x.forward(&self.features(f)?, Act::None)?,
                 ],
                 D::Minus1,
@@ -495,21 +510,10 @@ impl Vrnn {
     /// frame `t − 1` in place, weighted by the contact probabilities
     /// (`logits: [B, T, 2]`).
     fn lock_sequence(&self, x_hat: &Tensor, logits: &Tensor) -> Result<Tensor> {
-        let (_, t, _) = x_hat.dims3()?;
-        let Some(body) = &self.config.body else {
-            return Ok(x_hat.clone());
-        };
-        let x_hat = &ground(x_hat, logits, body)?;
-        if t < 2 {
-            return Ok(x_hat.clone());
+        match &self.config.body {
+            Some(body) => feet::foot_lock(x_hat, logits, &body.stats()),
+            None => Ok(x_hat.clone()),
         }
-        let locked = lock(
-            &x_hat.narrow(1, 0, t - 1)?,
-            &x_hat.narrow(1, 1, t - 1)?,
-            &logits.narrow(1, 1, t - 1)?,
-            body,
-        )?;
-        Tensor::cat(&[&x_hat.narrow(1, 0, 1)?, &locked], 1)
     }
 
     /// The whole decoder over sequences `[B, T, ·]`: latent filter, layers,
@@ -610,12 +614,13 @@ impl Vrnn {
     fn fed_back(
         &self,
         x: &Tensor,
+        feat: &Tensor,
         eps: &Tensor,
         mask: &Tensor,
         lengths: Option<&Tensor>,
     ) -> Result<Tensor> {
         let t = x.dim(1)?;
-        let s = self.scan(x, None, eps)?;
+        let s = self.scan(feat, None, eps)?;
         let p = stacked(&self.prior[0], &self.prior[1])?.forward(&s.h, Act::None)?;
         let z = draw(&p, eps, self.config.latent)?;
         let z = if t > 1 {
@@ -655,11 +660,12 @@ impl MotionModel for Vrnn {
         let b = x.dim(0)? as f64;
         let eps = eps.transpose(0, 1)?.contiguous()?;
         let lengths = self.window_bones(x)?;
+        let feat = self.features(x)?;
         let fed = match feed {
-            Some(mask) => Some(self.fed_back(x, &eps, mask, lengths.as_ref())?),
+            Some(mask) => Some(self.fed_back(x, &feat, &eps, mask, lengths.as_ref())?),
             None => None,
         };
-        let s = self.scan(x, fed.as_ref(), &eps)?;
+        let s = self.scan(&feat, fed.as_ref(), &eps)?;
         let p = stacked(&self.prior[0], &self.prior[1])?.forward(&s.h, Act::None)?;
         let kl = gaussian_kl(&s.q, &p)?;
         let (x_hat, logits) = self.decode(&s.z, &s.h, lengths.as_ref())?;
@@ -667,7 +673,7 @@ impl MotionModel for Vrnn {
         let mut extra = Tensor::zeros((), DType::F32, x.device())?;
         if let (Some(body), w) = (&self.config.body, self.config.parts.feet) {
             if w > 0.0 {
-                extra = (extra + (foot_slide(&x_hat, x, body)? * (w / b))?)?;
+                extra = (extra + (feet::foot_slide(&x_hat, x, &body.stats())? * (w / b))?)?;
             }
         }
         if let (Some(body), Some(l)) = (&self.config.body, &logits) {
@@ -684,7 +690,7 @@ impl MotionModel for Vrnn {
         let (b, t, _) = x.dims3()?;
         let zero = Tensor::zeros((b, t, self.config.latent), DType::F32, x.device())?;
         // With ε = 0 the posterior sample is its mean.
-        let s = self.scan(x, None, &zero)?;
+        let s = self.scan(&self.features(x)?, None, &zero)?;
         let lengths = self.window_bones(x)?;
         Ok(self.decode(&s.z, &s.h, lengths.as_ref())?.0)
     }
@@ -748,8 +754,8 @@ impl MotionModel for Vrnn {
                         (frames.last(), self.contact_logits(&o)?, &self.config.body)
                     {
                         let one = |t: &Tensor| t.unsqueeze(1);
-                        let g = ground(&one(&x)?, &one(&l)?, body)?;
-                        x = lock(&one(prev)?, &g, &one(&l)?, body)?.squeeze(1)?;
+                        let g = ground(&one(&x)?, &one(&l)?, &body.stats())?;
+                        x = lock(&one(prev)?, &g, &one(&l)?, &body.stats())?.squeeze(1)?;
                     }
                     let feat = self.features(&x)?;
                     (x, feat)
@@ -809,11 +815,7 @@ fn draw(p: &Tensor, e: &Tensor, latent: usize) -> Result<Tensor> {
     mu + (sigma * e)?
 }
 
-/// Toe height under which a foot is on the floor (CMU units: 5 cm).
-pub const CONTACT_UNITS: f64 = 0.05 / 0.0564;
-
-/// The toes (joint indices) whose contact the foot lock predicts.
-const TOES: [usize; 2] = [4, 8];
+pub use crate::blocks::feet::CONTACT_UNITS;
 
 /// Extra decoder outputs: one contact logit per toe with the foot lock.
 fn contacts(c: &Config) -> usize {
@@ -826,7 +828,7 @@ fn contacts(c: &Config) -> usize {
 
 /// Raw (CMU-unit) value of feature `k` of normalised rows `v: […, input]`.
 fn raw_col(v: &Tensor, k: usize, body: &Body) -> Result<Tensor> {
-    (v.narrow(D::Minus1, k, 1)? * body.std[k] as f64)? + body.mean[k] as f64
+    feet::raw_col(v, k, &body.stats())
 }
 
 /// 1 where the real toe of normalised rows `x` is below [`CONTACT_UNITS`]:
@@ -850,124 +852,6 @@ fn contact_loss(logits: &Tensor, x: &Tensor, body: &Body) -> Result<Tensor> {
     // softplus(l) − t·l, written stably: max(l, 0) − t·l + log(1 + e^{−|l|}).
     let soft = (logits.relu()? + (logits.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
     (soft - (logits * target)?)?.sum_all()
-}
-
-/// Vertical half of the foot lock: every height of normalised rows
-/// `x: […, input]` (the root's and each joint's local y) moved by
-/// `α·(h_c − y_lock)`, where `y_lock` is the toes' height weighted by their
-/// contact probabilities, `h_c` the training set's toe height in contact and
-/// `α` the probability that some foot is down: a planted foot stands on the
-/// floor, so the figure can neither sink nor float while it is planted.
-fn ground(x: &Tensor, logits: &Tensor, body: &Body) -> Result<Tensor> {
-    let f = x.dim(D::Minus1)?;
-    let p = candle_nn::ops::sigmoid(logits)?;
-    let mut wy: Option<Tensor> = None;
-    for (i, &toe) in TOES.iter().enumerate() {
-        let y = raw_col(x, 1 + 3 * (toe - 1) + 1, body)?;
-        let term = (p.narrow(D::Minus1, i, 1)? * y)?;
-        wy = Some(match wy {
-            None => term,
-            Some(a) => (a + term)?,
-        });
-    }
-    let wsum = p.sum_keepdim(D::Minus1)?;
-    let none = (1.0 - p.narrow(D::Minus1, 0, 1)?)?.mul(&(1.0 - p.narrow(D::Minus1, 1, 1)?)?)?;
-    let y_lock = (wy.unwrap_or(wsum.zeros_like()?) / (&wsum + 1e-6)?)?;
-    let shift = ((1.0 - none)? * (body.contact_height as f64 - y_lock)?)?;
-    // 1/std on the height columns, 0 elsewhere.
-    let mut per: Vec<f32> = vec![0.0; f];
-    per[0] = 1.0 / body.std[0];
-    for j in 0..BONES {
-        let k = 1 + 3 * j + 1;
-        per[k] = 1.0 / body.std[k];
-    }
-    let per = Tensor::new(per.as_slice(), x.device())?;
-    x + shift.broadcast_mul(&per)?
-}
-
-/// The foot lock: frame `cur` (normalised `[…, n, input]`) with the root's
-/// planar velocity replaced by `α·v_lock + (1 − α)·v`, where `v_lock` keeps
-/// the toes of `prev` in place (each toe weighted by its contact
-/// probability `sigmoid(logits)`), `α = 1 − Π(1 − p)` the probability that
-/// some foot is down and `v` the decoded velocity.
-fn lock(prev: &Tensor, cur: &Tensor, logits: &Tensor, body: &Body) -> Result<Tensor> {
-    let f = cur.dim(D::Minus1)?;
-    let (kx, kz, kt) = (f - 3, f - 2, f - 1);
-    let th = raw_col(cur, kt, body)?;
-    let (c, s) = (th.cos()?, th.sin()?);
-    let p = candle_nn::ops::sigmoid(logits)?;
-    let (mut wx, mut wz) = (Tensor::zeros_like(&th)?, Tensor::zeros_like(&th)?);
-    let mut wsum = Tensor::zeros_like(&th)?;
-    let mut none = Tensor::ones_like(&th)?;
-    for (i, &toe) in TOES.iter().enumerate() {
-        let k = 1 + 3 * (toe - 1);
-        let (lx, lz) = (raw_col(cur, k, body)?, raw_col(cur, k + 2, body)?);
-        let (px, pz) = (raw_col(prev, k, body)?, raw_col(prev, k + 2, body)?);
-        // s = v + R(θ)·p_t − p_{t−1} = 0
-        let vx = (px - ((&c * &lx)? + (&s * &lz)?)?)?;
-        let vz = (pz - ((&c * &lz)? - (&s * &lx)?)?)?;
-        let w = p.narrow(D::Minus1, i, 1)?;
-        wx = (wx + (&w * vx)?)?;
-        wz = (wz + (&w * vz)?)?;
-        wsum = (wsum + &w)?;
-        none = (none * (1.0 - &w)?)?;
-    }
-    let alpha = (1.0 - none)?;
-    let blend = |lock: Tensor, k: usize| -> Result<Tensor> {
-        let lock = (lock / (&wsum + 1e-6)?)?;
-        let free = raw_col(cur, k, body)?;
-        let v = ((&alpha * lock)? + ((1.0 - &alpha)? * free)?)?;
-        (v - body.mean[k] as f64)? / body.std[k] as f64
-    };
-    let (vx, vz) = (blend(wx, kx)?, blend(wz, kz)?);
-    Tensor::cat(
-        &[
-            &cur.narrow(D::Minus1, 0, kx)?,
-            &vx,
-            &vz,
-            &cur.narrow(D::Minus1, kt, 1)?,
-        ],
-        D::Minus1,
-    )
-}
-
-/// The foot-contact penalty: `Σ` over windows, frames `t ≥ 1` and both toes
-/// where the real toe (in `x`) is below [`CONTACT_UNITS`], of the squared
-/// horizontal displacement of the decoded toe (in `x_hat`) from frame
-/// `t − 1` to `t` in the world, expressed in frame `t − 1`'s axes:
-/// `s = v_t + R(θ_t)·p_t − p_{t−1}` with `v` the root's planar velocity,
-/// `θ` its turn and `p` the toe's local (x, z) (see `to_global`).
-fn foot_slide(x_hat: &Tensor, x: &Tensor, body: &Body) -> Result<Tensor> {
-    let (_, t, f) = x.dims3()?;
-    if t < 2 {
-        return Tensor::zeros((), DType::F32, x.device());
-    }
-    let dev = x.device();
-    let mean = Tensor::new(body.mean.as_slice(), dev)?;
-    let std = Tensor::new(body.std.as_slice(), dev)?;
-    let raw = |v: &Tensor| v.broadcast_mul(&std)?.broadcast_add(&mean);
-    let (xh, xr) = (raw(x_hat)?, raw(x)?);
-    let col = |v: &Tensor, k: usize, from: usize| v.narrow(2, k, 1)?.narrow(1, from, t - 1);
-    let (vx, vz, th) = (
-        col(&xh, f - 3, 1)?,
-        col(&xh, f - 2, 1)?,
-        col(&xh, f - 1, 1)?,
-    );
-    let (c, s) = (th.cos()?, th.sin()?);
-    let mut total = Tensor::zeros((), DType::F32, dev)?;
-    for toe in [4usize, 8] {
-        let k = 1 + 3 * (toe - 1);
-        let (lx, lz) = (col(&xh, k, 1)?, col(&xh, k + 2, 1)?);
-        let (px, pz) = (col(&xh, k, 0)?, col(&xh, k + 2, 0)?);
-        let sx = (((&vx + (&c * &lx)?)? + (&s * &lz)?)? - px)?;
-        let sz = (((&vz - (&s * &lx)?)? + (&c * &lz)?)? - pz)?;
-        let contact = col(&xr, k + 1, 1)?
-            .lt(CONTACT_UNITS)?
-            .to_dtype(DType::F32)?;
-        let slide = ((sx.sqr()? + sz.sqr()?)? * contact)?.sum_all()?;
-        total = (total + slide)?;
-    }
-    Ok(total)
 }
 
 /// `KL(N(μ, σ) ‖ N(0, 1))` summed over the last dimension.
@@ -1017,7 +901,7 @@ mod tests {
         cur[55] = 9.0; // the decoded velocity, overruled by the planted feet
         cur[56] = -9.0;
         let logits = Tensor::new(&[[[30f32, 30.0]]], &Device::Cpu).unwrap();
-        let out = lock(&row(&prev), &row(&cur), &logits, &body)
+        let out = lock(&row(&prev), &row(&cur), &logits, &body.stats())
             .unwrap()
             .flatten_all()
             .unwrap()
@@ -1030,7 +914,7 @@ mod tests {
         );
         // Feet in the air: the decoded velocity stays.
         let up = Tensor::new(&[[[-30f32, -30.0]]], &Device::Cpu).unwrap();
-        let out = lock(&row(&prev), &row(&cur), &up, &body)
+        let out = lock(&row(&prev), &row(&cur), &up, &body.stats())
             .unwrap()
             .flatten_all()
             .unwrap()
@@ -1119,7 +1003,7 @@ mod tests {
         x[1 + 3 * 11 + 1] = 20.0; // head
                                   // Left foot down, right foot up: everything moves by 0.5 − 3.
         let logits = Tensor::new(&[[[30f32, -30.0]]], &Device::Cpu).unwrap();
-        let out = ground(&row(&x), &logits, &body)
+        let out = ground(&row(&x), &logits, &body.stats())
             .unwrap()
             .flatten_all()
             .unwrap()

@@ -223,3 +223,43 @@ fn forward_kinematics_by_hand() {
         "{lengths:?}"
     );
 }
+
+#[test]
+fn foot_lock_block() {
+    let (b, t, f) = (2, 6, 58);
+    let x = randn(21, &[b, t, f], 1.0);
+    let logits = randn(22, &[b, t, 2], 2.0);
+    let mean: Vec<f32> = (0..f).map(|k| ((k * 7) % 5) as f32 - 2.0).collect();
+    let std: Vec<f32> = (0..f).map(|k| 0.5 + ((k * 3) % 4) as f32 * 0.5).collect();
+    let stats = blocks::feet::Stats {
+        mean: &mean,
+        std: &std,
+        contact_height: 0.7,
+    };
+    check("foot lock", &[x, logits], &[0, 1], 1e-5, 12, |t| {
+        blocks::feet::foot_lock(&t[0], &t[1], &stats).unwrap()
+    });
+}
+
+#[test]
+fn foot_slide_block() {
+    let (b, t, f) = (2, 7, 58);
+    let x_hat = randn(23, &[b, t, f], 1.0);
+    let x = randn(24, &[b, t, f], 1.0);
+    let mean: Vec<f32> = (0..f).map(|k| ((k * 5) % 3) as f32 - 1.0).collect();
+    let std: Vec<f32> = (0..f).map(|k| 0.5 + ((k * 3) % 4) as f32 * 0.5).collect();
+    let stats = blocks::feet::Stats {
+        mean: &mean,
+        std: &std,
+        contact_height: 0.7,
+    };
+    // Some real toes on the floor, some not.
+    let contact = values(&x)
+        .chunks_exact(f)
+        .filter(|r| r[11] * std[11] + mean[11] < blocks::feet::CONTACT_UNITS as f32)
+        .count();
+    assert!((1..b * t).contains(&contact), "{contact} contact rows");
+    check("foot slide", &[x_hat, x], &[0], 1e-5, 12, |t| {
+        blocks::feet::foot_slide(&t[0], &t[1], &stats).unwrap()
+    });
+}

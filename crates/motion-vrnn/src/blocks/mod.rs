@@ -17,7 +17,9 @@
 //! - [`gaussian_kl`]: `KL(N(μq, σq) ‖ N(μp, σp))` per step, summed.
 //! - [`squared_error`]: `Σ (a − b)²`.
 //! - [`skeleton`]: bone directions → joint positions (forward kinematics
-//!   with per-window bone lengths) and foot-locked root motion.
+//!   with per-window bone lengths).
+//! - [`feet`]: the foot lock over whole sequences (grounding, root motion
+//!   from the planted toes) and the penalty on toes that slide in contact.
 //! - [`filter`]: a causal per-channel low-pass filter over time.
 //!
 //! Blocks do not split their work across threads: training shards the
@@ -27,6 +29,7 @@
 use candle_core::{CpuStorage, Layout, Result, Storage, Tensor};
 use std::cell::Cell;
 
+pub mod feet;
 pub mod filter;
 mod kernels;
 pub mod kl;
