@@ -173,6 +173,7 @@ pub fn run(a: CompareArgs) -> Result<()> {
                     output_filter: None,
                     feet_weight: None,
                     kl_weight: None,
+                    self_feed: None,
                     preset: Preset::Standard,
                     epochs: a.epochs,
                     batch: None,

@@ -42,6 +42,10 @@ pub struct TrainArgs {
     /// Override the model's KL weight after warm-up (1: the ELBO).
     #[arg(long)]
     pub kl_weight: Option<f64>,
+    /// Override the largest share of frames the model is fed back in
+    /// training (scheduled sampling; 0: off).
+    #[arg(long)]
+    pub self_feed: Option<f64>,
     /// Starting point for every option below.
     #[arg(long, value_enum, default_value_t = Preset::Standard)]
     pub preset: Preset,
@@ -127,6 +131,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     if let Some(v) = a.feet_weight {
         parts.feet = v;
+    }
+    if let Some(v) = a.self_feed {
+        parts.self_feed = v;
     }
     if let Some(v) = a.kl_weight {
         parts.kl_weight = (v != 1.0).then_some(v);
