@@ -5,7 +5,10 @@ use integration_tests::{bvh_zip, read_entry};
 use mocap_ingest::dataset::{build_dataset, DatasetOptions, NoProgress};
 use mocap_ingest::source::Source;
 use motion_vrnn::data::load;
-use motion_vrnn::train::{layout, load_model, noise, train, Quiet, TrainConfig, TrainError};
+use motion_vrnn::generate::Judge;
+use motion_vrnn::train::{
+    layout, load_model, noise, read_meta, train, Quiet, Select, TrainConfig, TrainError,
+};
 use motion_vrnn::MotionModel;
 use std::path::Path;
 
@@ -133,4 +136,42 @@ fn a_non_finite_loss_stops_with_the_step_and_keeps_the_checkpoint() {
             .epoch,
         1
     );
+}
+
+#[test]
+fn best_is_the_epoch_whose_generated_motion_scores_best() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = small_dataset(tmp.path());
+    let data = load(&ds, &["train", "val"]).unwrap();
+    let run = tmp.path().join("run");
+    let dev = candle_core::Device::Cpu;
+    let cfg = TrainConfig {
+        epochs: 4,
+        select: Select::Generation { every: 2 },
+        ..tiny_config()
+    };
+    let out = train(&data, &cfg, &run, false, &dev, &Quiet).unwrap();
+    // Judged at epochs 2 and 4 only.
+    let judged: Vec<(usize, f64)> = out
+        .history
+        .iter()
+        .filter_map(|m| m.generated.as_ref().map(|v| (m.epoch, v.score)))
+        .collect();
+    assert_eq!(judged.iter().map(|j| j.0).collect::<Vec<_>>(), [2, 4]);
+    assert!(judged.iter().all(|j| j.1.is_finite() && j.1 >= 0.0));
+    let want = *judged.iter().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
+    let best = read_meta(&run.join(layout::BEST)).unwrap();
+    assert_eq!(best.epoch, want.0);
+    assert_eq!(best.best_generated, Some((want.1, want.0)));
+    assert_eq!(
+        read_meta(&run.join(layout::LAST)).unwrap().best_generated,
+        Some((want.1, want.0))
+    );
+    // The judge is deterministic: the last model judged again gives the
+    // verdict of epoch 4.
+    let judge = Judge::new(&data).unwrap();
+    let again = judge.judge(&out.model.model, &dev).unwrap();
+    assert_eq!(Some(&again), out.history[3].generated.as_ref());
+    assert!(judge.real().contact_share > 0.0 && judge.frechet_ref() > 0.0);
 }

@@ -182,6 +182,8 @@ pub fn run(a: CompareArgs) -> Result<()> {
                     kl_warmup: None,
                     clip: None,
                     early_stopping: None,
+                    select: None,
+                    judge_every: None,
                     resume: false,
                     quiet: true,
                 })

@@ -6,16 +6,17 @@
 use anyhow::{bail, Context, Result};
 use candle_core::Device;
 use clap::Args;
-use mocap_ingest::features::{to_global, FeatureVec, NUM_FEATURES};
+use mocap_ingest::features::NUM_FEATURES;
 use mocap_ingest::skeleton::Pose;
-use motion_metrics::{motion_stats, window_summary, MotionStats, Options};
+use motion_metrics::{motion_stats, MotionStats, Options};
 use motion_render::bvh::RoundTrip;
 use motion_render::figure::{animation, contact_sheet};
 use motion_render::io::write_motions;
 use motion_render::viewer::{write_viewer, MotionSet};
 use motion_render::Motion;
 use motion_vrnn::data::{Dataset, Stats, Windows};
-use motion_vrnn::train::{evaluate, layout, load_model, noise, CheckpointMeta, Trained};
+use motion_vrnn::generate::{self, to_poses};
+use motion_vrnn::train::{evaluate, layout, load_model, CheckpointMeta, Trained};
 use motion_vrnn::MotionModel;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -139,21 +140,6 @@ fn load(a: &RunArgs, splits: &[&str]) -> Result<Loaded> {
     })
 }
 
-/// Normalised features `[T × 58]` → global joint positions.
-fn to_poses(x: &[f32], stats: &Stats) -> Vec<Pose> {
-    let frames: Vec<FeatureVec> = x
-        .chunks(NUM_FEATURES)
-        .map(|r| {
-            let mut f = [0.0; NUM_FEATURES];
-            for (k, v) in f.iter_mut().enumerate() {
-                *v = r[k] as f64 * stats.std[k] + stats.mean[k];
-            }
-            f
-        })
-        .collect();
-    to_global(&frames)
-}
-
 /// Normalised features `[T × 58]` → a named global motion.
 fn to_motion(id: String, x: &[f32], stats: &Stats) -> Motion {
     Motion {
@@ -162,24 +148,18 @@ fn to_motion(id: String, x: &[f32], stats: &Stats) -> Motion {
     }
 }
 
-/// `n` windows sampled from the prior, normalised `[n][T × 58]`. Each
-/// starts from the first frame of a training window drawn at random
-/// (seeded by `seed`): the model reads it through its posterior, and the
-/// prior generates every later frame.
+/// `n` windows sampled from the prior, normalised `[n][T × 58]`, started
+/// from training frames ([`motion_vrnn::generate::sample_windows`]).
 fn sample_windows(m: &Loaded, n: usize, frames: usize, seed: u64) -> Result<Vec<Vec<f32>>> {
-    let latent = m.model.model.config().latent;
-    let eps = noise(seed ^ 0x5A3F1E, 0, frames, n, latent, &m.device)?;
     let train = split(m, "train")?;
-    let mut rng = motion_vrnn::rng::Rng::new(seed, 0x57A7);
-    let picks: Vec<usize> = (0..n)
-        .map(|_| ((rng.uniform() * train.n as f64) as usize).min(train.n - 1))
-        .collect();
-    let start = train.batch(&picks, &m.device)?.narrow(1, 0, 1)?;
-    let x = m.model.model.sample(&eps, Some(&start))?;
-    let v = x.flatten_all()?.to_vec1::<f32>()?;
-    Ok(v.chunks(frames * NUM_FEATURES)
-        .map(<[f32]>::to_vec)
-        .collect())
+    Ok(generate::sample_windows(
+        &m.model.model,
+        train,
+        n,
+        frames,
+        seed,
+        &m.device,
+    )?)
 }
 
 /// Real windows `idx` of a split and their reconstructions, normalised.
@@ -537,20 +517,8 @@ pub fn report(a: &RunArgs) -> Result<EvalReport> {
         motion_stats(&global(&rec), &o),
         motion_stats(&global(&gen), &o),
     );
-    let summaries = |set: &[Vec<f32>]| -> Vec<Vec<f64>> {
-        set.iter()
-            .map(|x| {
-                let rows: Vec<Vec<f32>> = x.chunks(NUM_FEATURES).map(<[f32]>::to_vec).collect();
-                window_summary(&rows)
-            })
-            .collect()
-    };
-    let train = split(&m, "train")?;
-    let train_windows: Vec<Vec<f32>> = train
-        .data
-        .chunks(train.length * train.features)
-        .map(<[f32]>::to_vec)
-        .collect();
+    let summaries = |set: &[Vec<f32>]| generate::summaries(set, NUM_FEATURES);
+    let train_windows = generate::windows_of(split(&m, "train")?);
     let s_real = summaries(&real);
     let report = EvalReport {
         run: a.run.display().to_string(),

@@ -5,7 +5,7 @@ use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use motion_render::chart::{line_chart, Series};
 use motion_vrnn::model::{Config, MODELS};
-use motion_vrnn::train::{layout, train, EpochMetrics, TrainConfig, TrainProgress};
+use motion_vrnn::train::{layout, train, EpochMetrics, Select, TrainConfig, TrainProgress};
 use std::path::{Path, PathBuf};
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -17,6 +17,15 @@ pub enum Preset {
     Quick,
     /// Exactly the paper: Adam 1e-3, batch 1,600, 2,000 epochs, nothing else.
     Paper,
+}
+
+/// How the `best` checkpoint is chosen.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum SelectBy {
+    /// The epoch whose generated motion is closest to the validation windows.
+    Generation,
+    /// The epoch with the lowest validation loss.
+    Loss,
 }
 
 #[derive(Args)]
@@ -70,6 +79,14 @@ pub struct TrainArgs {
     /// Early-stopping patience in epochs (0: off).
     #[arg(long)]
     pub early_stopping: Option<usize>,
+    /// How `best` is chosen: `generation` (motions generated every
+    /// --judge-every epochs, measured against the validation windows) or
+    /// `loss` (lowest validation loss; the paper preset's choice).
+    #[arg(long, value_enum)]
+    pub select: Option<SelectBy>,
+    /// Epochs between two judgements of generated motion (--select generation).
+    #[arg(long)]
+    pub judge_every: Option<usize>,
     /// Continue the run in --out from its `last` checkpoint.
     #[arg(long)]
     pub resume: bool,
@@ -89,10 +106,16 @@ impl TrainProgress for Bar {
     }
     fn epoch(&self, m: &EpochMetrics) {
         self.0.set_position(m.epoch as u64);
-        let line = format!(
+        let mut line = format!(
             "epoch {:>4}  train recon {:>9.3} kl {:>7.3}  val recon {:>9.3} kl {:>7.3}  {:>6.0} windows/s  {:.1} s",
             m.epoch, m.train_recon, m.train_kl, m.val_recon, m.val_kl, m.windows_per_s, m.seconds
         );
+        if let Some(v) = &m.generated {
+            line += &format!(
+                "  generated: distance {:.3}, Fréchet {:.1}",
+                v.score, v.frechet
+            );
+        }
         // A hidden bar (no terminal) prints nothing: keep the log readable.
         if self.0.is_hidden() {
             if !self.1 {
@@ -159,6 +182,18 @@ pub fn run(a: TrainArgs) -> Result<()> {
     if let Some(v) = a.early_stopping {
         cfg.early_stopping = (v > 0).then_some(v);
     }
+    let every = match cfg.select {
+        Select::Generation { every } => every,
+        Select::Loss => 5,
+    };
+    cfg.select = match (a.select, a.judge_every) {
+        (Some(SelectBy::Loss), _) => Select::Loss,
+        (Some(SelectBy::Generation), n) => Select::Generation {
+            every: n.unwrap_or(every),
+        },
+        (None, Some(n)) if !cfg.select.is_loss() => Select::Generation { every: n },
+        (None, _) => cfg.select,
+    };
     let device = motion_vrnn::model::default_device();
     let data = motion_vrnn::data::load(&a.data, &["train", "val"]).with_context(|| {
         format!(

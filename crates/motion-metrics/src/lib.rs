@@ -411,6 +411,47 @@ pub fn frechet(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
     (d2 + tr(&ca) + tr(&cb) - 2.0 * tr_sqrt).max(0.0)
 }
 
+/// Bone-length variation a generated motion may have before
+/// [`goal_distance`] counts it (the goal of issue 11: 1 %).
+pub const BONE_CV_GOAL: f64 = 0.01;
+
+/// How far generated motion is from real motion on every measure at once,
+/// for choosing among checkpoints: the sum of `|ln(generated ÷ real)|` over
+/// jerk, foot contact, APD, hips height and hips speed (whole motions and
+/// last [`TAIL`] frames), plus the one-sided terms `max(0, ln(·))` of
+/// skating in contact ÷ real, bone cv ÷ [`BONE_CV_GOAL`] and Fréchet ÷
+/// `frechet_ref`. 0 means every ratio is 1 (or better, for the one-sided
+/// terms); a ratio of 0 counts as 1e-3.
+pub fn goal_distance(real: &MotionStats, gen: &MotionStats, frechet: f64, frechet_ref: f64) -> f64 {
+    let ln = |a: f64, b: f64| (a.max(1e-3 * b.abs()) / b).ln();
+    let two_sided = [
+        (gen.jerk_m_s3, real.jerk_m_s3),
+        (gen.contact_share, real.contact_share),
+        (gen.apd_m, real.apd_m),
+        (gen.hip_height_m, real.hip_height_m),
+        (gen.hip_height_end_m, real.hip_height_end_m),
+        (gen.root_speed_m_s, real.root_speed_m_s),
+        (gen.root_speed_end_m_s, real.root_speed_end_m_s),
+    ];
+    let one_sided = [
+        (gen.skate_in_contact, real.skate_in_contact),
+        (gen.bone_cv, BONE_CV_GOAL),
+        (frechet, frechet_ref),
+    ];
+    let defined = |b: f64| b.is_finite() && b > 0.0;
+    two_sided
+        .iter()
+        .filter(|(_, b)| defined(*b))
+        .map(|&(a, b)| ln(a, b).abs())
+        .chain(
+            one_sided
+                .iter()
+                .filter(|(_, b)| defined(*b))
+                .map(|&(a, b)| ln(a, b).max(0.0)),
+        )
+        .sum()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -542,5 +583,41 @@ mod tests {
     fn window_summary_is_mean_then_std() {
         let w = vec![vec![1.0f32, 0.0], vec![3.0, 0.0]];
         assert_eq!(window_summary(&w), vec![2.0, 0.0, 1.0, 0.0]);
+    }
+
+    #[test]
+    fn goal_distance_sums_log_ratios() {
+        let real = MotionStats {
+            jerk_m_s3: 10.0,
+            contact_share: 0.5,
+            apd_m: 1.0,
+            hip_height_m: 1.0,
+            hip_height_end_m: 1.0,
+            root_speed_m_s: 0.4,
+            root_speed_end_m_s: 0.4,
+            skate_in_contact: 0.1,
+            bone_cv: 0.002,
+            ..MotionStats::default()
+        };
+        // Every ratio 1, bones and skating within their goals: distance 0.
+        let same = MotionStats {
+            bone_cv: 0.0,
+            skate_in_contact: 0.05,
+            ..real.clone()
+        };
+        assert!(goal_distance(&real, &same, 50.0, 70.0).abs() < 1e-12);
+        // Jerk ×2, speed ÷2 at the end, bones 4 %, skating ×3, Fréchet ×1.5.
+        let off = MotionStats {
+            jerk_m_s3: 20.0,
+            root_speed_end_m_s: 0.2,
+            bone_cv: 0.04,
+            skate_in_contact: 0.3,
+            ..real.clone()
+        };
+        let want = 2f64.ln() + 2f64.ln() + 4f64.ln() + 3f64.ln() + 1.5f64.ln();
+        assert!((goal_distance(&real, &off, 105.0, 70.0) - want).abs() < 1e-12);
+        // A frozen motion (APD 0) counts as 1e-3 of real, not infinity.
+        let frozen = MotionStats { apd_m: 0.0, ..same };
+        assert!((goal_distance(&real, &frozen, 50.0, 70.0) - 1000f64.ln()).abs() < 1e-9);
     }
 }

@@ -10,12 +10,15 @@
 //!   KL, forward kinematics, a temporal filter), each with a hand-written
 //!   CPU backward tested against autograd.
 //! - [`data`]: the dataset through polars, normalised by its `stats.json`.
+//! - [`generate`]: motions sampled from a model, back in global positions,
+//!   and the [`generate::Judge`] that chooses checkpoints by them.
 //! - [`optim`]: Adam with saveable state; gradient-norm clipping.
 //! - [`train`]: the training loop, checkpoints, resume, metrics.
 //! - [`rng`]: the seeded RNG behind every random number.
 
 pub mod blocks;
 pub mod data;
+pub mod generate;
 pub mod model;
 pub mod optim;
 pub mod rng;

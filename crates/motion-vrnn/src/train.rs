@@ -3,6 +3,7 @@
 //! exact resume, a NaN guard.
 
 use crate::data::{Dataset, Windows};
+use crate::generate::{Judge, Verdict};
 use crate::model::{Config, Losses, MotionModel, Vrnn};
 use crate::optim::{clip_grad_norm, Adam, AdamConfig};
 use crate::rng::Rng;
@@ -74,6 +75,33 @@ pub struct TrainConfig {
     pub clip_grad_norm: Option<f64>,
     /// Stop after this many epochs without a better validation loss (None: off).
     pub early_stopping: Option<usize>,
+    /// How the `best` checkpoint is chosen.
+    #[serde(default, skip_serializing_if = "Select::is_loss")]
+    pub select: Select,
+}
+
+/// How training chooses its `best` checkpoint.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Select {
+    /// The epoch with the lowest validation loss (recon + KL).
+    #[default]
+    Loss,
+    /// Every `every` epochs (and at the last one), motions are generated
+    /// and measured against the validation windows
+    /// ([`crate::generate::Judge`]); the epoch whose motion is closest to
+    /// real motion on every measure at once is kept.
+    Generation {
+        /// Epochs between two judgements.
+        every: usize,
+    },
+}
+
+impl Select {
+    /// The paper's choice (by validation loss).
+    pub fn is_loss(&self) -> bool {
+        *self == Select::Loss
+    }
 }
 
 impl TrainConfig {
@@ -89,13 +117,14 @@ impl TrainConfig {
             kl_warmup_epochs: 0,
             clip_grad_norm: None,
             early_stopping: None,
+            select: Select::Loss,
         }
     }
 
     /// The default schedule (converges on the shared CMU samples in
     /// minutes): the default model, batch 64, 400 epochs, KL warm-up over 20
     /// epochs, clipping at 100, early stopping after 60 epochs without
-    /// improvement.
+    /// improvement, `best` chosen by generated motion every 5 epochs.
     pub fn standard() -> Self {
         TrainConfig {
             model: Config::named(crate::model::DEFAULT_MODEL).unwrap_or_default(),
@@ -104,6 +133,7 @@ impl TrainConfig {
             kl_warmup_epochs: 20,
             clip_grad_norm: Some(100.0),
             early_stopping: Some(60),
+            select: Select::Generation { every: 5 },
             ..Self::paper()
         }
     }
@@ -181,8 +211,12 @@ pub struct EpochMetrics {
     pub kl_weight: f64,
     /// Training throughput, windows per second.
     pub windows_per_s: f64,
-    /// Seconds of this epoch.
+    /// Seconds of this epoch (judging included).
     pub seconds: f64,
+    /// The generated motion, measured, in the epochs that were judged
+    /// ([`Select::Generation`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generated: Option<Verdict>,
 }
 
 impl EpochMetrics {
@@ -209,6 +243,10 @@ pub struct CheckpointMeta {
     pub best_val_loss: f64,
     /// Epoch of the best validation loss.
     pub best_epoch: usize,
+    /// With [`Select::Generation`]: the best judged score so far and its
+    /// epoch (the `best` checkpoint).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub best_generated: Option<(f64, usize)>,
     /// Metrics of the last epoch.
     pub metrics: Option<EpochMetrics>,
 }
@@ -396,7 +434,8 @@ pub mod layout {
     pub const METRICS: &str = "metrics.jsonl";
     /// Latest checkpoint (with optimiser state).
     pub const LAST: &str = "last";
-    /// Checkpoint with the lowest validation loss.
+    /// The chosen checkpoint: lowest validation loss, or best generated
+    /// motion ([`super::Select`]).
     pub const BEST: &str = "best";
     /// Model weights inside a checkpoint directory.
     pub const MODEL: &str = "model.safetensors";
@@ -494,6 +533,16 @@ pub fn train(
     let mut history: Vec<EpochMetrics> = Vec::new();
     let mut start_epoch = 0;
     let mut best = (f64::INFINITY, 0usize);
+    let mut best_generated: Option<(f64, usize)> = None;
+    let judge = match config.select {
+        Select::Loss => None,
+        Select::Generation { every: 0 } => {
+            return Err(TrainError::Invalid(
+                "choosing by generated motion needs a positive period".into(),
+            ))
+        }
+        Select::Generation { every } => Some((Judge::new(data)?, every)),
+    };
     let last_dir = run.join(layout::LAST);
     if resume {
         let meta = read_meta(&last_dir)?;
@@ -523,6 +572,7 @@ pub fn train(
         adam.load_state(&state, meta.step)?;
         start_epoch = meta.epoch;
         best = (meta.best_val_loss, meta.best_epoch);
+        best_generated = meta.best_generated;
         // Keep the metrics of the epochs the checkpoint has seen.
         if let Ok(text) = std::fs::read_to_string(&metrics_path) {
             history = text
@@ -608,7 +658,8 @@ pub fn train(
             val_kl,
             kl_weight: kl_w,
             windows_per_s: seen as f64 / train_secs.max(1e-9),
-            seconds: started.elapsed().as_secs_f64(),
+            seconds: 0.0,
+            generated: None,
         };
         if !m.val_loss().is_finite() {
             return Err(TrainError::NonFinite {
@@ -626,6 +677,24 @@ pub fn train(
         } else {
             stale += 1;
         }
+        // Judge every `every` epochs, at the last epoch, and before early
+        // stopping ends the run.
+        let mut m = m;
+        let last = m.epoch == config.epochs || config.early_stopping.is_some_and(|p| stale >= p);
+        let chosen = match &judge {
+            None => improved,
+            Some((j, every)) if m.epoch % every == 0 || last => {
+                let v = j.judge(&t.model, device)?;
+                let better = best_generated.is_none_or(|(s, _)| v.score < s);
+                if better {
+                    best_generated = Some((v.score, m.epoch));
+                }
+                m.generated = Some(v);
+                better
+            }
+            Some(_) => false,
+        };
+        m.seconds = started.elapsed().as_secs_f64();
         let meta = CheckpointMeta {
             config: config.clone(),
             dataset_manifest_sha256: data.manifest_sha256.clone(),
@@ -634,12 +703,13 @@ pub fn train(
             step: adam.step,
             best_val_loss: best.0,
             best_epoch: best.1,
+            best_generated,
             metrics: Some(m.clone()),
         };
         // Metrics first, then the checkpoint: a resume trims metrics to the
         // checkpoint's epoch, so a kill in between loses nothing.
         append_metrics(&metrics_path, &m)?;
-        if improved {
+        if chosen {
             save_checkpoint(run, layout::BEST, &t.varmap, None, &meta)?;
         }
         save_checkpoint(run, layout::LAST, &t.varmap, Some(&adam), &meta)?;

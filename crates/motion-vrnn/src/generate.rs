@@ -1,0 +1,178 @@
+//! Generated motion, measured: windows sampled from a model's prior, turned
+//! back into global joint positions, and the [`Judge`] that scores a model
+//! by how close its generated motion comes to real motion on every measure
+//! of `docs/metrics.md` at once (used to choose the `best` checkpoint).
+
+use crate::data::{Dataset, Stats, Windows};
+use crate::model::MotionModel;
+use crate::train::{noise, TrainError};
+use candle_core::Device;
+use mocap_ingest::features::{to_global, FeatureVec, NUM_FEATURES};
+use mocap_ingest::skeleton::Pose;
+use motion_metrics::{frechet, goal_distance, motion_stats, window_summary, MotionStats, Options};
+use serde::{Deserialize, Serialize};
+
+/// Normalised feature rows (`[T × 58]`, one window) → global joint positions.
+pub fn to_poses(x: &[f32], stats: &Stats) -> Vec<Pose> {
+    let frames: Vec<FeatureVec> = x
+        .chunks(NUM_FEATURES)
+        .map(|r| {
+            let mut f = [0.0; NUM_FEATURES];
+            for (k, v) in f.iter_mut().enumerate() {
+                *v = r[k] as f64 * stats.std[k] + stats.mean[k];
+            }
+            f
+        })
+        .collect();
+    to_global(&frames)
+}
+
+/// The per-window summaries the Fréchet distance compares, of normalised
+/// windows `[T × features]`.
+pub fn summaries(windows: &[Vec<f32>], features: usize) -> Vec<Vec<f64>> {
+    windows
+        .iter()
+        .map(|x| {
+            let rows: Vec<Vec<f32>> = x.chunks(features).map(<[f32]>::to_vec).collect();
+            window_summary(&rows)
+        })
+        .collect()
+}
+
+/// Every window of a split, one normalised `[T × features]` vector each.
+pub fn windows_of(w: &Windows) -> Vec<Vec<f32>> {
+    w.data
+        .chunks(w.length * w.features)
+        .map(<[f32]>::to_vec)
+        .collect()
+}
+
+/// `n` motions of `frames` frames sampled from the prior, normalised
+/// `[n][frames × features]`. Each starts from the first frame of a window of
+/// `starts` drawn at random (seeded by `seed`): the model reads it through
+/// its posterior, and the prior generates every later frame. The noise comes
+/// from `seed` too, so the same model and seed give the same motions.
+pub fn sample_windows(
+    model: &dyn MotionModel,
+    starts: &Windows,
+    n: usize,
+    frames: usize,
+    seed: u64,
+    device: &Device,
+) -> candle_core::Result<Vec<Vec<f32>>> {
+    if starts.n == 0 {
+        candle_core::bail!("no windows to start generated motions from");
+    }
+    let latent = model.config().latent;
+    let eps = noise(seed ^ 0x5A3F1E, 0, frames, n, latent, device)?;
+    let mut rng = crate::rng::Rng::new(seed, 0x57A7);
+    let picks: Vec<usize> = (0..n)
+        .map(|_| ((rng.uniform() * starts.n as f64) as usize).min(starts.n - 1))
+        .collect();
+    let start = starts.batch(&picks, device)?.narrow(1, 0, 1)?;
+    let x = model.sample(&eps, Some(&start))?;
+    let v = x.flatten_all()?.to_vec1::<f32>()?;
+    Ok(v.chunks(frames * starts.features)
+        .map(<[f32]>::to_vec)
+        .collect())
+}
+
+/// Sampling seed of the judge: apart from the seeds `cargo xtask eval` and
+/// `sample` use by default, so the checkpoint is not chosen on the motions
+/// it is then reported with.
+pub const JUDGE_SEED: u64 = 0x1D6E;
+
+/// Motions the judge generates.
+pub const JUDGE_MOTIONS: usize = 200;
+
+/// Training windows the judge measures real motion on, at most (evenly
+/// spaced through the split, so APD over all pairs stays cheap on the whole
+/// database).
+pub const JUDGE_REFERENCE: usize = 800;
+
+/// A model's generated motion, measured against the training windows.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Verdict {
+    /// [`goal_distance`] of the generated motion (lower is better).
+    pub score: f64,
+    /// Fréchet distance of the generated windows to the training windows.
+    pub frechet: f64,
+    /// The generated motion's measures.
+    pub generated: MotionStats,
+}
+
+/// Scores models by their generated motion: [`JUDGE_MOTIONS`] motions, each
+/// started from the first frame of a training window, measured against the
+/// training windows (at most [`JUDGE_REFERENCE`]), the distribution they start from and the model is fit
+/// to. The Fréchet reference is the validation windows' distance to the
+/// training windows: generated windows should come as close to the training
+/// set as held-out real windows do.
+pub struct Judge<'a> {
+    starts: &'a Windows,
+    stats: &'a Stats,
+    real: MotionStats,
+    real_summaries: Vec<Vec<f64>>,
+    frechet_ref: f64,
+    options: Options,
+}
+
+impl<'a> Judge<'a> {
+    /// A judge on `data`'s `train` windows (and `val` for the Fréchet
+    /// reference; without validation windows Fréchet is left out of the score).
+    pub fn new(data: &'a Dataset) -> Result<Self, TrainError> {
+        let get = |s: &str| data.splits.get(s).filter(|w| w.n > 0);
+        let train = get("train").ok_or_else(|| {
+            TrainError::Invalid(format!(
+                "{}: choosing the checkpoint by generated motion needs train windows",
+                data.dir.display()
+            ))
+        })?;
+        let options = Options::default();
+        let all = windows_of(train);
+        let k = all.len().min(JUDGE_REFERENCE);
+        let real: Vec<Vec<f32>> = (0..k).map(|i| all[i * all.len() / k].clone()).collect();
+        let poses: Vec<Vec<Pose>> = real.iter().map(|x| to_poses(x, &data.stats)).collect();
+        let real_summaries = summaries(&real, train.features);
+        let frechet_ref = get("val").map_or(0.0, |val| {
+            frechet(&summaries(&windows_of(val), val.features), &real_summaries)
+        });
+        Ok(Judge {
+            starts: train,
+            stats: &data.stats,
+            real: motion_stats(&poses, &options),
+            real_summaries,
+            frechet_ref,
+            options,
+        })
+    }
+
+    /// The measures of the training windows.
+    pub fn real(&self) -> &MotionStats {
+        &self.real
+    }
+
+    /// The Fréchet distance of the validation windows to the training ones
+    /// (0 without validation windows).
+    pub fn frechet_ref(&self) -> f64 {
+        self.frechet_ref
+    }
+
+    /// Generate with `model` (sampling seed [`JUDGE_SEED`]) and measure.
+    pub fn judge(&self, model: &dyn MotionModel, device: &Device) -> Result<Verdict, TrainError> {
+        let (n, frames) = (JUDGE_MOTIONS, self.starts.length);
+        let gen = sample_windows(model, self.starts, n, frames, JUDGE_SEED, device)?;
+        let poses: Vec<Vec<Pose>> = gen.iter().map(|x| to_poses(x, self.stats)).collect();
+        let generated = motion_stats(&poses, &self.options);
+        let frechet = frechet(&self.real_summaries, &summaries(&gen, self.starts.features));
+        let score = goal_distance(&self.real, &generated, frechet, self.frechet_ref);
+        Ok(Verdict {
+            score: if score.is_finite() {
+                score
+            } else {
+                f64::INFINITY
+            },
+            frechet,
+            generated,
+        })
+    }
+}
