@@ -25,13 +25,12 @@
 
 use crate::blocks::feet::{self, ground, lock, TOES};
 use crate::blocks::scan::ScanDims;
-use crate::blocks::skeleton::{bone_lengths, forward_kinematics, BONES};
+use crate::blocks::skeleton::{bone_lengths, place, BONES};
 use crate::blocks::{
     self, filter, gaussian_kl, latent_lstm, linear, lstm_cell, squared_error, Act,
 };
 use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::VarBuilder;
-use mocap_ingest::skeleton::JOINT_PARENTS;
 use serde::{Deserialize, Serialize};
 
 /// Lower bound on every standard deviation (guards `log σ` and `1/σ²`).
@@ -342,9 +341,6 @@ pub struct Vrnn {
     w_hh: Tensor,
     b_ih: Tensor,
     b_hh: Tensor,
-    /// Skeleton part: the constant affine map from decoded normalised
-    /// `[root height | 18 joints]` to the 18 bone vectors (CMU units).
-    bone_map: Option<Lin>,
 }
 
 /// What the recurrence gives per row.
@@ -409,10 +405,6 @@ impl Vrnn {
             w_hh: rnn.get((h4, c.hidden), "weight_hh_l0")?,
             b_ih: rnn.get(h4, "bias_ih_l0")?,
             b_hh: rnn.get(h4, "bias_hh_l0")?,
-            bone_map: match &c.body {
-                Some(body) if c.parts.skeleton => Some(bone_map(body, vb.device())?),
-                _ => None,
-            },
         })
     }
 
@@ -541,22 +533,10 @@ impl Vrnn {
 
     /// Skeleton part: decoder outputs (the 58 normalised features, as in
     /// the paper) → each decoded bone (joint minus parent) rescaled to its
-    /// length by forward kinematics → the 58 normalised features.
+    /// length by forward kinematics → the 58 normalised features
+    /// ([`blocks::skeleton::place`]).
     fn place(&self, o: &Tensor, body: &Body, lengths: &Tensor) -> Result<Tensor> {
-        let dev = o.device();
-        let j = 3 * BONES;
-        let yn = o.narrow(D::Minus1, 0, 1)?;
-        let y = ((&yn * body.std[0] as f64)? + body.mean[0] as f64)?;
-        let dirs = match &self.bone_map {
-            Some(m) => m.forward(&o.narrow(D::Minus1, 0, 1 + j)?, Act::None)?,
-            None => o.narrow(D::Minus1, 1, j)?,
-        };
-        let p = forward_kinematics(&y, &dirs, lengths)?;
-        let mean = Tensor::new(&body.mean[1..1 + j], dev)?;
-        let std = Tensor::new(&body.std[1..1 + j], dev)?;
-        let pn = p.broadcast_sub(&mean)?.broadcast_div(&std)?;
-        let rest = o.narrow(D::Minus1, 1 + j, self.config.input - 1 - j)?;
-        Tensor::cat(&[&yn, &pn, &rest], D::Minus1)
+        place(o, lengths, &body.mean, &body.std)
     }
 
     /// The decoder's latent: `z` through the causal filter when it is on.
@@ -582,23 +562,22 @@ impl Vrnn {
         };
         let (b, t, f) = x.dims3()?;
         let v = x.flatten_all()?.to_vec1::<f32>()?;
-        let raw: Vec<f32> = v
-            .iter()
-            .enumerate()
-            .map(|(i, v)| v * body.std[i % f] + body.mean[i % f])
-            .collect();
-        let (y, joints) = split_raw(&raw, f);
-        let per_row = bone_lengths(&y, &joints);
         let mut out = vec![0.0f32; b * t * BONES];
-        for w in 0..b {
+        let raw = |row: &[f32], k: usize| row[k] * body.std[k] + body.mean[k];
+        let mut joints = [0.0f32; 3 * BONES];
+        for (w, window) in v.chunks_exact(t * f).enumerate() {
             let mut mean = [0.0f64; BONES];
-            for r in w * t..(w + 1) * t {
-                for (m, l) in mean.iter_mut().zip(&per_row[r * BONES..(r + 1) * BONES]) {
+            for row in window.chunks_exact(f) {
+                for (k, j) in joints.iter_mut().enumerate() {
+                    *j = raw(row, 1 + k);
+                }
+                let lengths = bone_lengths(&[raw(row, 0)], &joints);
+                for (m, l) in mean.iter_mut().zip(&lengths) {
                     *m += *l as f64;
                 }
             }
-            for r in w * t..(w + 1) * t {
-                for (o, m) in out[r * BONES..(r + 1) * BONES].iter_mut().zip(&mean) {
+            for o in out[w * t * BONES..(w + 1) * t * BONES].chunks_exact_mut(BONES) {
+                for (o, m) in o.iter_mut().zip(&mean) {
                     *o = (m / t as f64) as f32;
                 }
             }
@@ -677,7 +656,7 @@ impl MotionModel for Vrnn {
             }
         }
         if let (Some(body), Some(l)) = (&self.config.body, &logits) {
-            extra = (extra + (contact_loss(l, x, body)? / b)?)?;
+            extra = (extra + (feet::contact_loss(l, x, &body.stats())? / b)?)?;
         }
         Ok(Losses {
             recon: (recon / b)?,
@@ -774,38 +753,6 @@ impl MotionModel for Vrnn {
     }
 }
 
-/// The skeleton part's bone map: `W: [54, 55]`, `b: [54]` such that
-/// `W·[ŷ | p̂] + b` is, for each bone, the denormalised decoded joint minus
-/// its denormalised parent (the root at `(0, y, 0)`).
-fn bone_map(body: &Body, dev: &Device) -> Result<Lin> {
-    let (n, j) = (3 * BONES, 1 + 3 * BONES);
-    let (mut w, mut b) = (vec![0.0f32; n * j], vec![0.0f32; n]);
-    for bone in 0..BONES {
-        let joint = bone + 1;
-        for k in 0..3 {
-            let (row, col) = (3 * bone + k, 1 + 3 * bone + k);
-            w[row * j + col] += body.std[col];
-            b[row] += body.mean[col];
-            match JOINT_PARENTS[joint] {
-                Some(p) if p > 0 => {
-                    let pc = 1 + 3 * (p - 1) + k;
-                    w[row * j + pc] -= body.std[pc];
-                    b[row] -= body.mean[pc];
-                }
-                _ if k == 1 => {
-                    w[row * j] -= body.std[0];
-                    b[row] -= body.mean[0];
-                }
-                _ => {}
-            }
-        }
-    }
-    Ok(Lin {
-        w: Tensor::from_vec(w, (n, j), dev)?,
-        b: Tensor::from_vec(b, n, dev)?,
-    })
-}
-
 /// A draw from a Gaussian head's `[μ | logit σ]` (last dimension `2Z`)
 /// with noise `e`.
 fn draw(p: &Tensor, e: &Tensor, latent: usize) -> Result<Tensor> {
@@ -826,34 +773,6 @@ fn contacts(c: &Config) -> usize {
     }
 }
 
-/// Raw (CMU-unit) value of feature `k` of normalised rows `v: […, input]`.
-fn raw_col(v: &Tensor, k: usize, body: &Body) -> Result<Tensor> {
-    feet::raw_col(v, k, &body.stats())
-}
-
-/// 1 where the real toe of normalised rows `x` is below [`CONTACT_UNITS`]:
-/// `[…, 2]`.
-fn real_contacts(x: &Tensor, body: &Body) -> Result<Tensor> {
-    let cols: Vec<Tensor> = TOES
-        .iter()
-        .map(|&toe| {
-            raw_col(x, 1 + 3 * (toe - 1) + 1, body)?
-                .lt(CONTACT_UNITS)?
-                .to_dtype(DType::F32)
-        })
-        .collect::<Result<_>>()?;
-    Tensor::cat(&cols, D::Minus1)
-}
-
-/// Binary cross-entropy of contact logits against the real contacts of
-/// `x`, summed over windows, frames and toes.
-fn contact_loss(logits: &Tensor, x: &Tensor, body: &Body) -> Result<Tensor> {
-    let target = real_contacts(x, body)?;
-    // softplus(l) − t·l, written stably: max(l, 0) − t·l + log(1 + e^{−|l|}).
-    let soft = (logits.relu()? + (logits.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
-    (soft - (logits * target)?)?.sum_all()
-}
-
 /// `KL(N(μ, σ) ‖ N(0, 1))` summed over the last dimension.
 pub use blocks::kl::{kl_gaussians, kl_standard};
 
@@ -865,6 +784,7 @@ pub fn default_device() -> Device {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use mocap_ingest::skeleton::JOINT_PARENTS;
 
     /// Statistics that leave values as they are (mean 0, std 1).
     fn identity_body() -> Body {
@@ -938,33 +858,52 @@ mod tests {
     }
 
     #[test]
-    fn the_bone_map_gives_each_joint_minus_its_parent() {
+    fn placing_scales_each_bone_from_its_parent_in_raw_units() {
         // Statistics that are not the identity: raw = 2·n + 1.
-        let body = Body {
-            mean: vec![1.0; 58],
-            std: vec![2.0; 58],
-            ..identity_body()
-        };
+        let (mean, std) = (vec![1.0f32; 58], vec![2.0f32; 58]);
         let raw = pose();
         let n: Vec<f32> = raw.iter().map(|v| (v - 1.0) / 2.0).collect();
-        let m = bone_map(&body, &Device::Cpu).unwrap();
-        let x = Tensor::from_vec(n[..55].to_vec(), (1, 55), &Device::Cpu).unwrap();
-        let d = m.forward(&x, Act::None).unwrap().flatten_all().unwrap();
-        let d = d.to_vec1::<f32>().unwrap();
-        for j in 1..=BONES {
-            let at = |j: usize, k: usize| match j {
-                0 if k == 1 => raw[0],
-                0 => 0.0,
-                _ => raw[1 + 3 * (j - 1) + k],
+        let at = |v: &[f32], j: usize, k: usize| match j {
+            0 if k == 1 => v[0],
+            0 => 0.0,
+            _ => v[1 + 3 * (j - 1) + k],
+        };
+        let bone =
+            |v: &[f32], j: usize, k: usize| at(v, j, k) - at(v, JOINT_PARENTS[j].unwrap_or(0), k);
+        // Twice each bone's length: each bone doubles along its direction.
+        let lengths: Vec<f32> = bone_lengths(&raw[..1], &raw[1..55])
+            .iter()
+            .map(|l| 2.0 * l)
+            .collect();
+        let l = Tensor::from_vec(lengths, (1, 1, BONES), &Device::Cpu).unwrap();
+        for reference in [false, true] {
+            let run = || place(&row(&n), &l, &mean, &std);
+            let out = if reference {
+                blocks::reference(run)
+            } else {
+                run()
             };
-            let parent = JOINT_PARENTS[j].unwrap_or(0);
-            for k in 0..3 {
-                let want = at(j, k) - at(parent, k);
-                let got = d[3 * (j - 1) + k];
-                assert!(
-                    (got - want).abs() < 1e-5,
-                    "bone {j} axis {k}: {got} vs {want}"
-                );
+            let out: Vec<f32> = out
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap()
+                .iter()
+                .map(|v| 2.0 * v + 1.0)
+                .collect();
+            for j in 1..=BONES {
+                for k in 0..3 {
+                    let (got, want) = (bone(&out, j, k), 2.0 * bone(&raw, j, k));
+                    assert!(
+                        (got - want).abs() < 1e-4,
+                        "reference {reference}, bone {j} axis {k}: {got} vs {want}"
+                    );
+                }
+            }
+            // Root height, velocity and turn pass through.
+            for k in [0, 55, 56, 57] {
+                assert!((out[k] - raw[k]).abs() < 1e-5, "feature {k}");
             }
         }
     }

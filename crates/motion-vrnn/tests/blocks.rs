@@ -197,6 +197,24 @@ fn forward_kinematics_block() {
 }
 
 #[test]
+fn place_block() {
+    // Decoded features → bones rescaled by forward kinematics, through
+    // statistics that are not the identity.
+    let (n, f) = (5, 58);
+    let o = randn(17, &[n, f], 1.0);
+    let l: Vec<f32> = (0..n * skeleton::BONES)
+        .map(|i| 1.0 + (i % 5) as f32 * 0.5)
+        .collect();
+    let l = Var::from_tensor(&Tensor::from_vec(l, (n, skeleton::BONES), &Device::Cpu).unwrap())
+        .unwrap();
+    let mean: Vec<f32> = (0..f).map(|k| ((k * 7) % 5) as f32 - 2.0).collect();
+    let std: Vec<f32> = (0..f).map(|k| 0.5 + ((k * 3) % 4) as f32 * 0.5).collect();
+    check("place", &[o, l], &[0], 1e-5, 12, |t| {
+        skeleton::place(&t[0], &t[1], &mean, &std).unwrap()
+    });
+}
+
+#[test]
 fn forward_kinematics_by_hand() {
     // Every bone along +x with length 2 except the left leg chain: joint j's
     // position is the sum of its chain. LeftUpLeg (1) from Hips at (0, 5, 0).
@@ -262,4 +280,52 @@ fn foot_slide_block() {
     check("foot slide", &[x_hat, x], &[0], 1e-5, 12, |t| {
         blocks::feet::foot_slide(&t[0], &t[1], &stats).unwrap()
     });
+}
+
+#[test]
+fn contact_loss_block() {
+    let (b, t, f) = (2, 5, 58);
+    let logits = randn(25, &[b, t, 2], 2.0);
+    let x = randn(26, &[b, t, f], 1.0);
+    let mean: Vec<f32> = (0..f).map(|k| ((k * 5) % 3) as f32 - 1.0).collect();
+    let std: Vec<f32> = (0..f).map(|k| 0.5 + ((k * 3) % 4) as f32 * 0.5).collect();
+    let stats = blocks::feet::Stats {
+        mean: &mean,
+        std: &std,
+        contact_height: 0.7,
+    };
+    check("contact loss", &[logits, x], &[0], 1e-5, 8, |t| {
+        blocks::feet::contact_loss(&t[0], &t[1], &stats).unwrap()
+    });
+}
+
+#[test]
+fn contact_loss_by_hand() {
+    // One frame, identity statistics: left toe down (y = 0), right toe up
+    // (y = 9). Logits 0 and 2: ln 2 for the left toe, softplus(2) for the right.
+    let mut x = vec![0f32; 58];
+    x[1 + 3 * 3 + 1] = 0.0;
+    x[1 + 3 * 7 + 1] = 9.0;
+    let x = Tensor::from_vec(x, (1, 1, 58), &Device::Cpu).unwrap();
+    let logits = Tensor::new(&[[[0f32, 2.0]]], &Device::Cpu).unwrap();
+    let (mean, std) = (vec![0f32; 58], vec![1f32; 58]);
+    let stats = blocks::feet::Stats {
+        mean: &mean,
+        std: &std,
+        contact_height: 0.0,
+    };
+    let want = 2f32.ln() + (1.0 + 2f32.exp()).ln();
+    for reference in [false, true] {
+        let run = || blocks::feet::contact_loss(&logits, &x, &stats).unwrap();
+        let got = if reference {
+            blocks::reference(run)
+        } else {
+            run()
+        };
+        let got = got.to_scalar::<f32>().unwrap();
+        assert!(
+            (got - want).abs() < 1e-5,
+            "reference {reference}: {got} vs {want}"
+        );
+    }
 }

@@ -553,3 +553,99 @@ impl CustomOp2 for SlideOp {
         Ok((Some(tensor(gx, xh.dims(), xh)?), None))
     }
 }
+
+/// The contact loss of the foot lock: binary cross-entropy of the contact
+/// logits `[B, T, 2]` against the real contacts of `x: [B, T, F]` (1 where
+/// the real toe is below [`CONTACT_UNITS`]), summed over windows, frames and
+/// toes. `x` gets no gradient.
+pub fn contact_loss(logits: &Tensor, x: &Tensor, body: &Stats) -> Result<Tensor> {
+    let f = x.dim(D::Minus1)?;
+    if logits.elem_count() != (x.elem_count() / f.max(1)) * TOES.len() || body.mean.len() != f {
+        candle_core::bail!(
+            "contact_loss: logits {:?}, x {:?}",
+            logits.shape(),
+            x.shape()
+        );
+    }
+    if fused(logits) {
+        return logits.contiguous()?.apply_op2(
+            &x.contiguous()?,
+            ContactOp {
+                mean: body.mean.to_vec(),
+                std: body.std.to_vec(),
+            },
+        );
+    }
+    let cols: Vec<Tensor> = TOES
+        .iter()
+        .map(|&toe| {
+            raw_col(x, toe_col(toe) + 1, body)?
+                .lt(CONTACT_UNITS)?
+                .to_dtype(DType::F32)
+        })
+        .collect::<Result<_>>()?;
+    let target = Tensor::cat(&cols, D::Minus1)?;
+    // softplus(l) − t·l, written stably: max(l, 0) − t·l + log(1 + e^{−|l|}).
+    let soft = (logits.relu()? + (logits.abs()?.neg()?.exp()? + 1.0)?.log()?)?;
+    (soft - (logits * target)?)?.sum_all()
+}
+
+/// The fused [`contact_loss`]: inputs `(logits, x)`.
+struct ContactOp {
+    mean: Vec<f32>,
+    std: Vec<f32>,
+}
+
+impl ContactOp {
+    /// Each `(logit index, logit, target)`.
+    fn each(&self, logits: &[f32], x: &[f32], mut g: impl FnMut(usize, f32, f32)) {
+        let f = self.mean.len();
+        for (r, row) in x.chunks_exact(f).enumerate() {
+            for (i, &toe) in TOES.iter().enumerate() {
+                let k = toe_col(toe) + 1;
+                let down = row[k] * self.std[k] + self.mean[k] < CONTACT_UNITS as f32;
+                let at = r * TOES.len() + i;
+                g(at, logits[at], if down { 1.0 } else { 0.0 });
+            }
+        }
+    }
+}
+
+impl CustomOp2 for ContactOp {
+    fn name(&self) -> &'static str {
+        "contact-loss"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (logits, x) = (slice(s1, l1, "logits")?, slice(s2, l2, "x")?);
+        let mut sum = 0.0f64;
+        self.each(logits, x, |_, l, t| {
+            sum += (l.max(0.0) - t * l + (-l.abs()).exp().ln_1p()) as f64
+        });
+        Ok((CpuStorage::F32(vec![sum as f32]), Shape::from(())))
+    }
+
+    fn bwd(
+        &self,
+        logits: &Tensor,
+        x: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let g = grad.to_dtype(DType::F32)?.to_scalar::<f32>()?;
+        let gl = with_values(logits, |lv| {
+            with_values(x, |xv| {
+                let mut d = vec![0.0f32; lv.len()];
+                self.each(lv, xv, |at, l, t| d[at] = g * (sigmoid(l) - t));
+                Ok(d)
+            })
+        })?;
+        Ok((Some(tensor(gl, logits.dims(), logits)?), None))
+    }
+}

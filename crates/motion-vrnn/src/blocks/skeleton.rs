@@ -15,7 +15,7 @@
 //! gradients.
 
 use super::{fused, slice, tensor, with_values};
-use candle_core::{CpuStorage, CustomOp3, Layout, Result, Shape, Tensor, D};
+use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor, D};
 use mocap_ingest::skeleton::{JOINT_PARENTS, NUM_JOINTS};
 
 /// Bones of the tree (every joint but the root).
@@ -177,4 +177,206 @@ pub fn bone_lengths(y: &[f32], joints: &[f32]) -> Vec<f32> {
         }
     }
     out
+}
+
+/// The skeleton part as one block: normalised decoder outputs `o: […, F]`
+/// (root height, the 18 joints' local xyz, then the other features) → the
+/// same features with every bone rescaled to its length by forward
+/// kinematics. With `raw(v, k) = v·std_k + mean_k`, per row:
+///
+/// ```text
+/// d_j  = raw(joint j) − raw(parent j)       (the root at (0, raw(o_0), 0))
+/// p    = forward_kinematics(raw(o_0), d, lengths)
+/// out  = [o_0 | (p − mean) / std | o_55…]
+/// ```
+///
+/// so a pose whose bones already have the right lengths comes out
+/// unchanged, and a bone only ever changes length, never direction.
+/// `lengths` get no gradient (they are data).
+pub fn place(o: &Tensor, lengths: &Tensor, mean: &[f32], std: &[f32]) -> Result<Tensor> {
+    let f = o.dim(D::Minus1)?;
+    let rows = o.elem_count() / f.max(1);
+    if f < 1 + 3 * BONES
+        || mean.len() != f
+        || std.len() != f
+        || lengths.elem_count() != rows * BONES
+    {
+        candle_core::bail!(
+            "place: o {:?}, lengths {:?}, statistics of {}",
+            o.shape(),
+            lengths.shape(),
+            mean.len()
+        );
+    }
+    if fused(o) {
+        return o.contiguous()?.apply_op2(
+            &lengths.contiguous()?,
+            PlaceOp {
+                mean: mean.to_vec(),
+                std: std.to_vec(),
+            },
+        );
+    }
+    place_reference(o, lengths, mean, std)
+}
+
+/// [`place`] in candle ops.
+fn place_reference(o: &Tensor, lengths: &Tensor, mean: &[f32], std: &[f32]) -> Result<Tensor> {
+    let (f, j) = (o.dim(D::Minus1)?, 3 * BONES);
+    let dev = o.device();
+    let raw = o
+        .broadcast_mul(&Tensor::new(std, dev)?)?
+        .broadcast_add(&Tensor::new(mean, dev)?)?;
+    let y = raw.narrow(D::Minus1, 0, 1)?;
+    let zero = y.zeros_like()?;
+    let root = Tensor::cat(&[&zero, &y, &zero], D::Minus1)?;
+    let at = |k: usize| -> Result<Tensor> {
+        match k {
+            0 => Ok(root.clone()),
+            _ => raw.narrow(D::Minus1, 1 + 3 * (k - 1), 3),
+        }
+    };
+    let dirs: Vec<Tensor> = (1..NUM_JOINTS)
+        .map(|k| at(k)? - at(parent(k))?)
+        .collect::<Result<_>>()?;
+    let p = reference(&y, &Tensor::cat(&dirs, D::Minus1)?, lengths)?;
+    let pn = p
+        .broadcast_sub(&Tensor::new(&mean[1..1 + j], dev)?)?
+        .broadcast_div(&Tensor::new(&std[1..1 + j], dev)?)?;
+    Tensor::cat(
+        &[
+            &o.narrow(D::Minus1, 0, 1)?,
+            &pn,
+            &o.narrow(D::Minus1, 1 + j, f - 1 - j)?,
+        ],
+        D::Minus1,
+    )
+}
+
+/// The fused [`place`]: inputs `(o, lengths)`.
+struct PlaceOp {
+    mean: Vec<f32>,
+    std: Vec<f32>,
+}
+
+impl PlaceOp {
+    /// The raw root height and bone vectors of one row.
+    fn bones(&self, o: &[f32]) -> (f32, [[f32; 3]; NUM_JOINTS]) {
+        let y = o[0] * self.std[0] + self.mean[0];
+        let mut r = [[0.0f32; 3]; NUM_JOINTS];
+        r[0][1] = y;
+        for (j, rj) in r.iter_mut().enumerate().skip(1) {
+            for (k, v) in rj.iter_mut().enumerate() {
+                let c = 1 + 3 * (j - 1) + k;
+                *v = o[c] * self.std[c] + self.mean[c];
+            }
+        }
+        let mut d = [[0.0f32; 3]; NUM_JOINTS];
+        for j in 1..NUM_JOINTS {
+            let (a, b) = (r[j], r[parent(j)]);
+            d[j] = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        }
+        (y, d)
+    }
+}
+
+impl CustomOp2 for PlaceOp {
+    fn name(&self) -> &'static str {
+        "skeleton-place"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (o, len) = (slice(s1, l1, "o")?, slice(s2, l2, "lengths")?);
+        let f = self.mean.len();
+        let mut out = o.to_vec();
+        for (row, l) in out.chunks_exact_mut(f).zip(len.chunks_exact(BONES)) {
+            let (y, d) = self.bones(row);
+            let mut p = [[0.0f32; 3]; NUM_JOINTS];
+            p[0][1] = y;
+            for j in 1..NUM_JOINTS {
+                let dj = d[j];
+                let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
+                let s = l[j - 1] / n;
+                let q = p[parent(j)];
+                p[j] = [q[0] + s * dj[0], q[1] + s * dj[1], q[2] + s * dj[2]];
+                for k in 0..3 {
+                    let c = 1 + 3 * (j - 1) + k;
+                    row[c] = (p[j][k] - self.mean[c]) / self.std[c];
+                }
+            }
+        }
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+
+    fn bwd(
+        &self,
+        o: &Tensor,
+        lengths: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let f = self.mean.len();
+        let go = with_values(o, |ov| {
+            with_values(lengths, |len| {
+                with_values(grad, |g| {
+                    let mut go = g.to_vec();
+                    let rows = ov
+                        .chunks_exact(f)
+                        .zip(len.chunks_exact(BONES))
+                        .zip(go.chunks_exact_mut(f));
+                    for ((row, l), gr) in rows {
+                        let (_, d) = self.bones(row);
+                        // Gradient of each placed joint, children added in.
+                        let mut gp = [[0.0f32; 3]; NUM_JOINTS];
+                        for (j, gj) in gp.iter_mut().enumerate().skip(1) {
+                            for (k, v) in gj.iter_mut().enumerate() {
+                                let c = 1 + 3 * (j - 1) + k;
+                                *v = gr[c] / self.std[c];
+                            }
+                        }
+                        // Through forward kinematics to the bone vectors.
+                        let mut gd = [[0.0f32; 3]; NUM_JOINTS];
+                        for j in (1..NUM_JOINTS).rev() {
+                            let gj = gp[j];
+                            let q = &mut gp[parent(j)];
+                            for k in 0..3 {
+                                q[k] += gj[k];
+                            }
+                            let dj = d[j];
+                            let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
+                            let dot = (gj[0] * dj[0] + gj[1] * dj[1] + gj[2] * dj[2]) / (n * n);
+                            for k in 0..3 {
+                                gd[j][k] = l[j - 1] / n * (gj[k] - dj[k] * dot);
+                            }
+                        }
+                        // Bone vectors → raw joints (a joint minus its parent).
+                        let mut graw = [[0.0f32; 3]; NUM_JOINTS];
+                        for j in 1..NUM_JOINTS {
+                            for k in 0..3 {
+                                graw[j][k] += gd[j][k];
+                                graw[parent(j)][k] -= gd[j][k];
+                            }
+                        }
+                        // The root height moves every placed joint (gp[0]) and
+                        // is the parent of the bones from the root (graw[0]).
+                        gr[0] += (gp[0][1] + graw[0][1]) * self.std[0];
+                        for (j, gj) in graw.iter().enumerate().skip(1) {
+                            for (k, v) in gj.iter().enumerate() {
+                                let c = 1 + 3 * (j - 1) + k;
+                                gr[c] = v * self.std[c];
+                            }
+                        }
+                    }
+                    Ok(go)
+                })
+            })
+        })?;
+        Ok((Some(tensor(go, o.dims(), o)?), None))
+    }
 }
