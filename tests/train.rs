@@ -5,7 +5,7 @@ use integration_tests::{bvh_zip, read_entry};
 use mocap_ingest::dataset::{build_dataset, DatasetOptions, NoProgress};
 use mocap_ingest::source::Source;
 use motion_vrnn::data::load;
-use motion_vrnn::generate::Judge;
+use motion_vrnn::generate::{sample_windows, Judge};
 use motion_vrnn::train::{
     layout, load_model, noise, read_meta, train, Quiet, Select, TrainConfig, TrainError,
 };
@@ -174,4 +174,42 @@ fn best_is_the_epoch_whose_generated_motion_scores_best() {
     let again = judge.judge(&out.model.model, &dev).unwrap();
     assert_eq!(Some(&again), out.history[3].generated.as_ref());
     assert!(judge.real().contact_share > 0.0 && judge.frechet_ref() > 0.0);
+}
+
+#[test]
+fn generated_motions_continue_their_real_context() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = small_dataset(tmp.path());
+    let data = load(&ds, &["train", "val"]).unwrap();
+    let dev = candle_core::Device::Cpu;
+    let cfg = TrainConfig {
+        epochs: 1,
+        ..tiny_config()
+    };
+    let out = train(&data, &cfg, &tmp.path().join("run"), false, &dev, &Quiet).unwrap();
+    let train_w = &data.splits["train"];
+    let (f, k, frames) = (train_w.features, 5, 10);
+    let gen = sample_windows(&out.model.model, train_w, 6, frames, k, 3, &dev).unwrap();
+    assert_eq!(gen.len(), 6);
+    // Each motion starts at the last context frame of some training window
+    // (bit for bit: a real frame is read, not decoded), then moves on.
+    for m in &gen {
+        assert_eq!(m.len(), frames * f);
+        let first = &m[..f];
+        let found = train_w
+            .data
+            .chunks(train_w.length * f)
+            .any(|w| &w[(k - 1) * f..k * f] == first);
+        assert!(found, "a motion does not start at a context frame");
+        assert!(m[f..2 * f] != m[..f], "the second frame is generated");
+    }
+    // The same seed gives the same motions.
+    let again = sample_windows(&out.model.model, train_w, 6, frames, k, 3, &dev).unwrap();
+    assert_eq!(gen, again);
+    // A context longer than a window, or none, is refused.
+    for bad in [0, train_w.length + 1] {
+        let e = sample_windows(&out.model.model, train_w, 2, frames, bad, 3, &dev).unwrap_err();
+        assert!(e.to_string().contains("context"), "{e}");
+    }
 }

@@ -196,6 +196,7 @@ pub fn run(a: CompareArgs) -> Result<()> {
                 data: Some(a.data.clone()),
                 seed: 0,
                 split: "test".into(),
+                context: motion_vrnn::generate::CONTEXT,
             };
             let report = motion::report(&run_args)
                 .with_context(|| format!("evaluating {}", dir.display()))?;
@@ -264,7 +265,7 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
         s,
         "Written by `cargo xtask compare --data {} --page {}` ({} seeds per model, the `standard` schedule{}). \
          Each run is evaluated as `cargo xtask eval` does: its `best` checkpoint, the 51-odd real `test` windows, \
-         as many generated motions of 128 frames (sampling seed 0, each started from one real training frame), \
+         as many generated motions of 128 frames (sampling seed 0, each continuing 16 real training frames), \
          and the reconstructions of the test windows. Every value is the mean ± std over the seeds; \
          measures are defined in [metrics.md](metrics.md).\n",
         a.data.display(),

@@ -39,6 +39,10 @@ pub struct RunArgs {
     /// Split of real windows to reconstruct and compare with.
     #[arg(long, default_value = "test")]
     pub split: String,
+    /// Real frames of a training window each generated motion continues
+    /// (read through the posterior; the motion starts at the last of them).
+    #[arg(long, default_value_t = generate::CONTEXT)]
+    pub context: usize,
 }
 
 /// `cargo xtask sample` options.
@@ -148,16 +152,18 @@ fn to_motion(id: String, x: &[f32], stats: &Stats) -> Motion {
     }
 }
 
-/// `n` windows sampled from the prior, normalised `[n][T × 58]`, started
-/// from training frames ([`motion_vrnn::generate::sample_windows`]).
-fn sample_windows(m: &Loaded, n: usize, frames: usize, seed: u64) -> Result<Vec<Vec<f32>>> {
+/// `n` windows sampled from the prior, normalised `[n][T × 58]`, each
+/// continuing `a.context` frames of a training window
+/// ([`motion_vrnn::generate::sample_windows`]).
+fn sample_windows(m: &Loaded, a: &RunArgs, n: usize, frames: usize) -> Result<Vec<Vec<f32>>> {
     let train = split(m, "train")?;
     Ok(generate::sample_windows(
         &m.model.model,
         train,
         n,
         frames,
-        seed,
+        a.context,
+        a.seed,
         &m.device,
     )?)
 }
@@ -206,7 +212,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| a.run.run.join("samples"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let started = std::time::Instant::now();
-    let gen = sample_windows(&m, a.n, a.frames, a.run.seed)?;
+    let gen = sample_windows(&m, &a.run, a.n, a.frames)?;
     let motions: Vec<Motion> = gen
         .iter()
         .enumerate()
@@ -507,7 +513,7 @@ pub fn report(a: &RunArgs) -> Result<EvalReport> {
     let t = w.length as f64;
     let idx: Vec<usize> = (0..w.n).collect();
     let (real, rec) = reconstruct(&m, w, &idx)?;
-    let gen = sample_windows(&m, w.n, w.length, a.seed)?;
+    let gen = sample_windows(&m, a, w.n, w.length)?;
     let global = |set: &[Vec<f32>]| -> Vec<Vec<Pose>> {
         set.iter().map(|x| to_poses(x, &m.data.stats)).collect()
     };

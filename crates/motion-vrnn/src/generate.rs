@@ -47,30 +47,46 @@ pub fn windows_of(w: &Windows) -> Vec<Vec<f32>> {
         .collect()
 }
 
+/// Real frames a generated motion continues ([`sample_windows`]): 16
+/// frames, about half a second at 30 fps.
+pub const CONTEXT: usize = 16;
+
 /// `n` motions of `frames` frames sampled from the prior, normalised
-/// `[n][frames × features]`. Each starts from the first frame of a window of
-/// `starts` drawn at random (seeded by `seed`): the model reads it through
-/// its posterior, and the prior generates every later frame. The noise comes
-/// from `seed` too, so the same model and seed give the same motions.
+/// `[n][frames × features]`. Each continues the first `context` frames of a
+/// window of `starts` drawn at random (seeded by `seed`): the model reads
+/// them through its posterior, so its state and filters start where that
+/// real motion puts them (standing, walking, turning), and the prior
+/// generates every later frame. The motion is the last context frame (the
+/// pose it starts from) and the `frames − 1` frames generated after it; the
+/// other context frames are not part of it. The noise comes from `seed` too,
+/// so the same model and seed give the same motions.
 pub fn sample_windows(
     model: &dyn MotionModel,
     starts: &Windows,
     n: usize,
     frames: usize,
+    context: usize,
     seed: u64,
     device: &Device,
 ) -> candle_core::Result<Vec<Vec<f32>>> {
     if starts.n == 0 {
         candle_core::bail!("no windows to start generated motions from");
     }
-    let latent = model.config().latent;
-    let eps = noise(seed ^ 0x5A3F1E, 0, frames, n, latent, device)?;
+    if context == 0 || context > starts.length {
+        candle_core::bail!(
+            "the context of a generated motion must be 1 to {} frames (the window length), got {context}",
+            starts.length
+        );
+    }
+    let (latent, k) = (model.config().latent, context);
+    let eps = noise(seed ^ 0x5A3F1E, 0, frames + k - 1, n, latent, device)?;
     let mut rng = crate::rng::Rng::new(seed, 0x57A7);
     let picks: Vec<usize> = (0..n)
         .map(|_| ((rng.uniform() * starts.n as f64) as usize).min(starts.n - 1))
         .collect();
-    let start = starts.batch(&picks, device)?.narrow(1, 0, 1)?;
+    let start = starts.batch(&picks, device)?.narrow(1, 0, k)?;
     let x = model.sample(&eps, Some(&start))?;
+    let x = x.narrow(1, k - 1, frames)?;
     let v = x.flatten_all()?.to_vec1::<f32>()?;
     Ok(v.chunks(frames * starts.features)
         .map(<[f32]>::to_vec)
@@ -102,7 +118,7 @@ pub struct Verdict {
 }
 
 /// Scores models by their generated motion: [`JUDGE_MOTIONS`] motions, each
-/// started from the first frame of a training window, measured against the
+/// continuing the first [`CONTEXT`] frames of a training window, measured against the
 /// training windows (at most [`JUDGE_REFERENCE`]), the distribution they start from and the model is fit
 /// to. The Fréchet reference is the validation windows' distance to the
 /// training windows: generated windows should come as close to the training
@@ -160,7 +176,7 @@ impl<'a> Judge<'a> {
     /// Generate with `model` (sampling seed [`JUDGE_SEED`]) and measure.
     pub fn judge(&self, model: &dyn MotionModel, device: &Device) -> Result<Verdict, TrainError> {
         let (n, frames) = (JUDGE_MOTIONS, self.starts.length);
-        let gen = sample_windows(model, self.starts, n, frames, JUDGE_SEED, device)?;
+        let gen = sample_windows(model, self.starts, n, frames, CONTEXT, JUDGE_SEED, device)?;
         let poses: Vec<Vec<Pose>> = gen.iter().map(|x| to_poses(x, self.stats)).collect();
         let generated = motion_stats(&poses, &self.options);
         let frechet = frechet(&self.real_summaries, &summaries(&gen, self.starts.features));
