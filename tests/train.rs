@@ -148,9 +148,11 @@ fn best_is_the_epoch_whose_generated_motion_scores_best() {
     let dev = candle_core::Device::Cpu;
     let cfg = TrainConfig {
         epochs: 4,
+        kl_warmup_epochs: 2,
         select: Select::Generation { every: 2 },
         ..tiny_config()
     };
+    assert_eq!(cfg.schedule_end(), 2);
     let out = train(&data, &cfg, &run, false, &dev, &Quiet).unwrap();
     // Judged at epochs 2 and 4 only.
     let judged: Vec<(usize, f64)> = out
@@ -174,6 +176,26 @@ fn best_is_the_epoch_whose_generated_motion_scores_best() {
     let again = judge.judge(&out.model.model, &dev).unwrap();
     assert_eq!(Some(&again), out.history[3].generated.as_ref());
     assert!(judge.real().contact_share > 0.0 && judge.frechet_ref() > 0.0);
+}
+
+#[test]
+fn judging_starts_once_the_schedule_is_in_full() {
+    // The standard schedule: the default model feeds back its own frames,
+    // rising to their full share over half of the 400 epochs.
+    let standard = TrainConfig::standard();
+    assert_eq!(standard.schedule_end(), 200);
+    // Without scheduled sampling: the end of the KL warm-up.
+    let paper = TrainConfig {
+        model: motion_vrnn::model::Config::named("paper").unwrap(),
+        ..TrainConfig::standard()
+    };
+    assert_eq!(paper.schedule_end(), 20);
+    // Never past the last epoch.
+    let short = TrainConfig {
+        epochs: 10,
+        ..paper
+    };
+    assert_eq!(short.schedule_end(), 10);
 }
 
 #[test]

@@ -198,7 +198,7 @@ pub fn run(a: CompareArgs) -> Result<()> {
                 split: "test".into(),
                 context: motion_vrnn::generate::CONTEXT,
             };
-            let report = motion::report(&run_args)
+            let report = motion::report(&run_args, motion::Contexts::Split)
                 .with_context(|| format!("evaluating {}", dir.display()))?;
             eprintln!(
                 "{name} seed {seed}: jerk {:.2}x, bone cv {:.2} %, APD {:.2}x, Fréchet {:.1}",

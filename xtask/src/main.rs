@@ -65,6 +65,11 @@ enum Command {
         /// blocks' reference path).
         #[arg(long)]
         autograd: bool,
+        /// A Python with PyTorch: also time the paper's model in PyTorch
+        /// eager (`xtask/py/pytorch_vrnn_step.py`) and print every model's
+        /// speed-up against it.
+        #[arg(long, value_name = "PYTHON")]
+        pytorch: Option<PathBuf>,
     },
     /// Benchmark `dataset` end to end on the CMU samples, 1 thread and all
     /// cores, and the ASF/AMC sample at 10×, each in a fresh process
@@ -127,6 +132,7 @@ fn main() -> Result<()> {
             steps,
             models,
             autograd,
+            pytorch,
         } => {
             let models = if models.is_empty() {
                 motion_vrnn::model::MODELS
@@ -136,7 +142,7 @@ fn main() -> Result<()> {
             } else {
                 models
             };
-            train::bench(&models, &batch, steps.max(1), autograd)
+            train::bench(&models, &batch, steps.max(1), autograd, pytorch.as_deref())
         }
         Command::BenchDataset {
             sources,

@@ -69,9 +69,24 @@ pub struct SampleArgs {
 pub struct EvalArgs {
     #[command(flatten)]
     run: RunArgs,
+    /// Where the generated motions' contexts come from: `split` continues
+    /// every window of --split once (the generated set starts where the real
+    /// set does), `train` continues random training windows as `sample` does.
+    #[arg(long, value_enum, default_value_t = Contexts::Split)]
+    contexts: Contexts,
     /// Output directory for eval.json and eval.md (default: RUN/eval).
     #[arg(long)]
     out: Option<PathBuf>,
+}
+
+/// Where `eval` takes the real frames its generated motions continue.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Contexts {
+    /// Every window of the evaluated split, once each.
+    Split,
+    /// Random training windows (as `sample`).
+    Train,
 }
 
 /// `cargo xtask screenshot` options.
@@ -465,6 +480,9 @@ pub struct EvalReport {
     pub dataset: String,
     pub split: String,
     pub seed: u64,
+    /// Real frames each generated motion continues, and whose.
+    pub context: usize,
+    pub contexts: Contexts,
     pub windows: usize,
     pub frames: usize,
     /// Per frame, on the split, with the training noise convention.
@@ -489,7 +507,7 @@ pub fn eval(a: EvalArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| a.run.run.join("eval"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let started = std::time::Instant::now();
-    let report = report(&a.run)?;
+    let report = report(&a.run, a.contexts)?;
     let json = serde_json::to_string_pretty(&report)? + "\n";
     motion_render::write_file(&out.join("eval.json"), json.as_bytes())?;
     let md = markdown(&report);
@@ -506,14 +524,25 @@ pub fn eval(a: EvalArgs) -> Result<()> {
 
 /// The evaluation of a run: real, reconstructed and generated windows of
 /// the split, measured alike.
-pub fn report(a: &RunArgs) -> Result<EvalReport> {
+pub fn report(a: &RunArgs, contexts: Contexts) -> Result<EvalReport> {
     let m = load(a, &["train", &a.split])?;
     let w = split(&m, &a.split)?;
     let (recon, kl) = evaluate(&m.model.model, w, 256, a.seed, &m.device)?;
     let t = w.length as f64;
     let idx: Vec<usize> = (0..w.n).collect();
     let (real, rec) = reconstruct(&m, w, &idx)?;
-    let gen = sample_windows(&m, a, w.n, w.length)?;
+    let gen = match contexts {
+        Contexts::Split => generate::continue_windows(
+            &m.model.model,
+            w,
+            &idx,
+            w.length,
+            a.context,
+            a.seed,
+            &m.device,
+        )?,
+        Contexts::Train => sample_windows(&m, a, w.n, w.length)?,
+    };
     let global = |set: &[Vec<f32>]| -> Vec<Vec<Pose>> {
         set.iter().map(|x| to_poses(x, &m.data.stats)).collect()
     };
@@ -533,6 +562,8 @@ pub fn report(a: &RunArgs) -> Result<EvalReport> {
         dataset: m.data.dir.display().to_string(),
         split: a.split.clone(),
         seed: a.seed,
+        context: a.context,
+        contexts,
         windows: w.n,
         frames: w.length,
         neg_elbo_per_frame: (recon + kl) / t,
@@ -553,8 +584,12 @@ pub fn report(a: &RunArgs) -> Result<EvalReport> {
 
 pub fn markdown(r: &EvalReport) -> String {
     let mut s = format!(
-        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}).\n\n",
-        r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed
+        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}), each continuing the first {} frames of {}.\n\n",
+        r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed, r.context,
+        match r.contexts {
+            Contexts::Split => format!("one `{}` window (every window once)", r.split),
+            Contexts::Train => "a random training window".to_string(),
+        }
     );
     s += &format!(
         "Per frame on `{}`: negative ELBO **{:.3}** = reconstruction {:.3} + KL {:.3} (normalised units).\n\n",

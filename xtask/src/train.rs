@@ -295,7 +295,13 @@ pub fn plot_history(path: &Path, history: &[EpochMetrics]) -> Result<()> {
 /// Adam) of each model on random windows, and the sampling time, in one
 /// table. With `reference`, also the same models through candle ops
 /// (autograd), the oracle of the fused blocks.
-pub fn bench(models: &[String], batches: &[usize], steps: usize, reference: bool) -> Result<()> {
+pub fn bench(
+    models: &[String],
+    batches: &[usize],
+    steps: usize,
+    reference: bool,
+    pytorch: Option<&Path>,
+) -> Result<()> {
     use motion_vrnn::optim::Adam;
     use motion_vrnn::train::{feed_mask, init_model, named_vars, noise, sharded};
     use motion_vrnn::MotionModel;
@@ -314,6 +320,7 @@ pub fn bench(models: &[String], batches: &[usize], steps: usize, reference: bool
     } else {
         &["fused"]
     };
+    let mut rows: Vec<(String, f64, usize, f64)> = Vec::new();
     for name in models {
         let mut model = Config::named(name).context("unknown model")?;
         // Synthetic data: the body of the skeleton part from random windows.
@@ -373,8 +380,98 @@ pub fn bench(models: &[String], batches: &[usize], steps: usize, reference: bool
                     (b * t) as f64 / median,
                     sample[2]
                 );
+                if path == "fused" {
+                    rows.push((name.clone(), model.parts.self_feed, b, median));
+                }
             }
         }
+    }
+    if let Some(python) = pytorch {
+        against_pytorch(python, &rows, batches, steps)?;
+    }
+    Ok(())
+}
+
+/// Median seconds per step of PyTorch eager on the paper's model, per batch
+/// size, in one form of `xtask/py/pytorch_vrnn_step.py` (`hoisted` or not).
+fn pytorch_medians(
+    python: &Path,
+    batches: &[usize],
+    steps: usize,
+    hoisted: bool,
+) -> Result<Vec<(usize, f64)>> {
+    let script = crate::workspace_root().join("xtask/py/pytorch_vrnn_step.py");
+    let mut cmd = std::process::Command::new(python);
+    cmd.arg(&script).arg("--batch");
+    cmd.args(batches.iter().map(usize::to_string));
+    cmd.args(["--steps", &steps.to_string()]);
+    cmd.args(["--threads", &rayon::current_num_threads().to_string()]);
+    if hoisted {
+        cmd.arg("--hoisted");
+    }
+    let out = cmd
+        .output()
+        .with_context(|| format!("running {} {}", python.display(), script.display()))?;
+    if !out.status.success() {
+        anyhow::bail!(
+            "{} {} failed (is PyTorch installed for it?):\n{}",
+            python.display(),
+            script.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let medians: Vec<(usize, f64)> = text
+        .lines()
+        .filter_map(|l| {
+            let mut w = l.split_whitespace();
+            Some((w.next()?.parse().ok()?, w.next()?.parse().ok()?))
+        })
+        .collect();
+    if medians.len() != batches.len() {
+        anyhow::bail!("unexpected output of {}:\n{text}", script.display());
+    }
+    Ok(medians)
+}
+
+/// Every model against PyTorch eager running the paper's model on this
+/// machine (the faster of its two forms at each batch size), with the
+/// speed bounds of issue 11: at least 1.5× faster at batch 1,600 and 5× at
+/// batch 64; a model that trains on its own predictions at least 1× and 3×.
+fn against_pytorch(
+    python: &Path,
+    rows: &[(String, f64, usize, f64)],
+    batches: &[usize],
+    steps: usize,
+) -> Result<()> {
+    let stepwise = pytorch_medians(python, batches, steps, false)?;
+    let hoisted = pytorch_medians(python, batches, steps, true)?;
+    println!();
+    println!("PyTorch eager, paper model (xtask/py/pytorch_vrnn_step.py), median s per step:");
+    for ((b, s), (_, h)) in stepwise.iter().zip(&hoisted) {
+        println!("  batch {b:>5}: stepwise {s:.4}, hoisted {h:.4}");
+    }
+    println!();
+    println!(
+        "{:>9} {:>6} {:>10} {:>11} {:>9} {:>7} {:>4}",
+        "model", "batch", "median s", "PyTorch s", "speed-up", "bound", "met"
+    );
+    for (name, feed, b, median) in rows {
+        let Some(i) = batches.iter().position(|x| x == b) else {
+            continue;
+        };
+        let torch = stepwise[i].1.min(hoisted[i].1);
+        let speedup = torch / median;
+        let bound = match (*feed > 0.0, *b >= 1600) {
+            (false, true) => 1.5,
+            (false, false) => 5.0,
+            (true, true) => 1.0,
+            (true, false) => 3.0,
+        };
+        println!(
+            "{name:>9} {b:>6} {median:>10.4} {torch:>11.4} {speedup:>8.2}x {bound:>6.1}x {:>4}",
+            if speedup >= bound { "yes" } else { "no" }
+        );
     }
     Ok(())
 }

@@ -69,8 +69,36 @@ pub fn sample_windows(
     seed: u64,
     device: &Device,
 ) -> candle_core::Result<Vec<Vec<f32>>> {
+    let mut rng = crate::rng::Rng::new(seed, 0x57A7);
+    let picks: Vec<usize> = (0..n)
+        .map(|_| ((rng.uniform() * starts.n as f64) as usize).min(starts.n.max(1) - 1))
+        .collect();
+    continue_windows(model, starts, &picks, frames, context, seed, device)
+}
+
+/// One motion of `frames` frames per index in `picks`, each continuing the
+/// first `context` frames of that window of `windows`, as
+/// [`sample_windows`] makes them (`eval` continues every window of the split
+/// it measures, once each, so the generated set starts where the real set
+/// does).
+pub fn continue_windows(
+    model: &dyn MotionModel,
+    windows: &Windows,
+    picks: &[usize],
+    frames: usize,
+    context: usize,
+    seed: u64,
+    device: &Device,
+) -> candle_core::Result<Vec<Vec<f32>>> {
+    let (starts, n) = (windows, picks.len());
     if starts.n == 0 {
         candle_core::bail!("no windows to start generated motions from");
+    }
+    if picks.iter().any(|&i| i >= starts.n) {
+        candle_core::bail!(
+            "a window to continue is out of range ({} windows)",
+            starts.n
+        );
     }
     if context == 0 || context > starts.length {
         candle_core::bail!(
@@ -80,11 +108,7 @@ pub fn sample_windows(
     }
     let (latent, k) = (model.config().latent, context);
     let eps = noise(seed ^ 0x5A3F1E, 0, frames + k - 1, n, latent, device)?;
-    let mut rng = crate::rng::Rng::new(seed, 0x57A7);
-    let picks: Vec<usize> = (0..n)
-        .map(|_| ((rng.uniform() * starts.n as f64) as usize).min(starts.n - 1))
-        .collect();
-    let start = starts.batch(&picks, device)?.narrow(1, 0, k)?;
+    let start = starts.batch(picks, device)?.narrow(1, 0, k)?;
     let x = model.sample(&eps, Some(&start))?;
     let x = x.narrow(1, k - 1, frames)?;
     let v = x.flatten_all()?.to_vec1::<f32>()?;

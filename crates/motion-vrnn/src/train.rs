@@ -87,8 +87,9 @@ pub enum Select {
     /// The epoch with the lowest validation loss (recon + KL).
     #[default]
     Loss,
-    /// Every `every` epochs (and at the last one), motions are generated
-    /// and measured against the validation windows
+    /// Every `every` epochs once the schedule is in full
+    /// ([`TrainConfig::schedule_end`]), and at the last one, motions are
+    /// generated and measured against the training windows
     /// ([`crate::generate::Judge`]); the epoch whose motion is closest to
     /// real motion on every measure at once is kept.
     Generation {
@@ -159,6 +160,21 @@ impl TrainConfig {
         } else {
             full * ((epoch + 1) as f64 / self.kl_warmup_epochs as f64).min(1.0)
         }
+    }
+
+    /// The first epoch (1-based, as in the metrics) trained with the
+    /// schedule in full: the KL weight warmed up and the share of frames fed
+    /// back at its maximum. [`Select::Generation`] judges no epoch before it
+    /// (an earlier model is not the model as trained: on `motion` the judge
+    /// otherwise once kept epoch 35 of 400, whose reconstructions were half
+    /// as jerky as real motion).
+    pub fn schedule_end(&self) -> usize {
+        let feed = if self.model.parts.self_feed > 0.0 {
+            (self.epochs / 2).max(1)
+        } else {
+            0
+        };
+        self.kl_warmup_epochs.max(feed).min(self.epochs)
     }
 
     /// Share of frames fed back in `epoch` (0-based; scheduled sampling):
@@ -683,7 +699,9 @@ pub fn train(
         let last = m.epoch == config.epochs || config.early_stopping.is_some_and(|p| stale >= p);
         let chosen = match &judge {
             None => improved,
-            Some((j, every)) if m.epoch % every == 0 || last => {
+            Some((j, every))
+                if (m.epoch % every == 0 && m.epoch >= config.schedule_end()) || last =>
+            {
                 let v = j.judge(&t.model, device)?;
                 let better = best_generated.is_none_or(|(s, _)| v.score < s);
                 if better {

@@ -305,9 +305,9 @@ impl CustomOp2 for PlaceOp {
                 let s = l[j - 1] / n;
                 let q = p[parent(j)];
                 p[j] = [q[0] + s * dj[0], q[1] + s * dj[1], q[2] + s * dj[2]];
-                for k in 0..3 {
+                for (k, v) in p[j].iter().enumerate() {
                     let c = 1 + 3 * (j - 1) + k;
-                    row[c] = (p[j][k] - self.mean[c]) / self.std[c];
+                    row[c] = (v - self.mean[c]) / self.std[c];
                 }
             }
         }
