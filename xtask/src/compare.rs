@@ -265,7 +265,7 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
         s,
         "Written by `cargo xtask compare --data {} --page {}` ({} seeds per model, the `standard` schedule{}). \
          Each run is evaluated as `cargo xtask eval` does: its `best` checkpoint, the 51-odd real `test` windows, \
-         as many generated motions of 128 frames (sampling seed 0, each continuing 16 real training frames), \
+         one generated motion of 128 frames per test window (sampling seed 0, each continuing the first 16 frames of its window), \
          and the reconstructions of the test windows. Every value is the mean ± std over the seeds; \
          measures are defined in [metrics.md](metrics.md).\n",
         a.data.display(),
