@@ -29,6 +29,58 @@ fn parent(j: usize) -> usize {
     JOINT_PARENTS[j].unwrap_or(0)
 }
 
+/// One row's 18 xyz triples (joints or bones 1 … 18) as an array indexed
+/// by joint, index 0 (the root) zero.
+fn bones_of(v: &[f32]) -> [[f32; 3]; NUM_JOINTS] {
+    let mut a = [[0.0f32; 3]; NUM_JOINTS];
+    for (j, aj) in a.iter_mut().enumerate().skip(1) {
+        aj.copy_from_slice(&v[(j - 1) * 3..][..3]);
+    }
+    a
+}
+
+/// Forward kinematics of one row: joint positions (index 0 the root at
+/// `(0, y, 0)`) from bone vectors `d` (index `j` from joint `j`'s parent)
+/// and lengths `l` (bone `j` at `l[j − 1]`).
+fn fk_row(y: f32, d: &[[f32; 3]; NUM_JOINTS], l: &[f32]) -> [[f32; 3]; NUM_JOINTS] {
+    let mut p = [[0.0f32; 3]; NUM_JOINTS];
+    p[0][1] = y;
+    for j in 1..NUM_JOINTS {
+        let dj = d[j];
+        let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
+        let s = l[j - 1] / n;
+        let q = p[parent(j)];
+        p[j] = [q[0] + s * dj[0], q[1] + s * dj[1], q[2] + s * dj[2]];
+    }
+    p
+}
+
+/// The backward of [`fk_row`]: from the gradient of each joint's position
+/// `gp` (children are added into their parents in place, so `gp[0][1]`
+/// ends as the root height's gradient), the gradient of each bone vector.
+fn fk_row_backward(
+    d: &[[f32; 3]; NUM_JOINTS],
+    l: &[f32],
+    gp: &mut [[f32; 3]; NUM_JOINTS],
+) -> [[f32; 3]; NUM_JOINTS] {
+    let mut gd = [[0.0f32; 3]; NUM_JOINTS];
+    for j in (1..NUM_JOINTS).rev() {
+        let gj = gp[j];
+        let q = &mut gp[parent(j)];
+        for k in 0..3 {
+            q[k] += gj[k];
+        }
+        let dj = d[j];
+        let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
+        // ∂(L d/n)/∂d = L/n (I − d dᵀ/n²)
+        let dot = (gj[0] * dj[0] + gj[1] * dj[1] + gj[2] * dj[2]) / (n * n);
+        for k in 0..3 {
+            gd[j][k] = l[j - 1] / n * (gj[k] - dj[k] * dot);
+        }
+    }
+    gd
+}
+
 /// Joint positions `[…, 54]` (joints 1 … 18, xyz) from the root height
 /// `y: […, 1]`, raw bone directions `dirs: […, 54]` and bone lengths
 /// `lengths: […, 18]`. The lengths get no gradient (they are data).
@@ -92,15 +144,9 @@ impl CustomOp3 for FkOp {
         let rows = y.len();
         let mut out = vec![0.0f32; rows * 3 * BONES];
         for r in 0..rows {
-            let mut p = [[0.0f32; 3]; NUM_JOINTS];
-            p[0][1] = y[r];
-            for j in 1..NUM_JOINTS {
-                let dj = &d[(r * BONES + j - 1) * 3..][..3];
-                let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
-                let s = len[r * BONES + j - 1] / n;
-                let q = p[parent(j)];
-                p[j] = [q[0] + s * dj[0], q[1] + s * dj[1], q[2] + s * dj[2]];
-                out[(r * BONES + j - 1) * 3..][..3].copy_from_slice(&p[j]);
+            let p = fk_row(y[r], &bones_of(&d[r * 3 * BONES..]), &len[r * BONES..]);
+            for (j, pj) in p.iter().enumerate().skip(1) {
+                out[(r * BONES + j - 1) * 3..][..3].copy_from_slice(pj);
             }
         }
         Ok((CpuStorage::F32(out), l1.shape().clone()))
@@ -121,26 +167,14 @@ impl CustomOp3 for FkOp {
             with_values(lengths, |len| {
                 with_values(grad, |g| {
                     for r in 0..rows {
-                        // Gradient of each joint's position, children added in.
-                        let mut gp = [[0.0f32; 3]; NUM_JOINTS];
-                        for j in 1..NUM_JOINTS {
-                            gp[j].copy_from_slice(&g[(r * BONES + j - 1) * 3..][..3]);
-                        }
-                        for j in (1..NUM_JOINTS).rev() {
-                            let gj = gp[j];
-                            let q = &mut gp[parent(j)];
-                            for k in 0..3 {
-                                q[k] += gj[k];
-                            }
-                            let dj = &d[(r * BONES + j - 1) * 3..][..3];
-                            let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
-                            let l = len[r * BONES + j - 1];
-                            // ∂(L d/n)/∂d = L/n (I − d dᵀ/n²)
-                            let dot = (gj[0] * dj[0] + gj[1] * dj[1] + gj[2] * dj[2]) / (n * n);
-                            let out = &mut dd[(r * BONES + j - 1) * 3..][..3];
-                            for k in 0..3 {
-                                out[k] = l / n * (gj[k] - dj[k] * dot);
-                            }
+                        let mut gp = bones_of(&g[r * 3 * BONES..]);
+                        let gd = fk_row_backward(
+                            &bones_of(&d[r * 3 * BONES..]),
+                            &len[r * BONES..],
+                            &mut gp,
+                        );
+                        for (j, gj) in gd.iter().enumerate().skip(1) {
+                            dd[(r * BONES + j - 1) * 3..][..3].copy_from_slice(gj);
                         }
                         dy[r] = gp[0][1];
                     }
@@ -297,15 +331,9 @@ impl CustomOp2 for PlaceOp {
         let mut out = o.to_vec();
         for (row, l) in out.chunks_exact_mut(f).zip(len.chunks_exact(BONES)) {
             let (y, d) = self.bones(row);
-            let mut p = [[0.0f32; 3]; NUM_JOINTS];
-            p[0][1] = y;
-            for j in 1..NUM_JOINTS {
-                let dj = d[j];
-                let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
-                let s = l[j - 1] / n;
-                let q = p[parent(j)];
-                p[j] = [q[0] + s * dj[0], q[1] + s * dj[1], q[2] + s * dj[2]];
-                for (k, v) in p[j].iter().enumerate() {
+            let p = fk_row(y, &d, l);
+            for (j, pj) in p.iter().enumerate().skip(1) {
+                for (k, v) in pj.iter().enumerate() {
                     let c = 1 + 3 * (j - 1) + k;
                     row[c] = (v - self.mean[c]) / self.std[c];
                 }
@@ -341,20 +369,7 @@ impl CustomOp2 for PlaceOp {
                             }
                         }
                         // Through forward kinematics to the bone vectors.
-                        let mut gd = [[0.0f32; 3]; NUM_JOINTS];
-                        for j in (1..NUM_JOINTS).rev() {
-                            let gj = gp[j];
-                            let q = &mut gp[parent(j)];
-                            for k in 0..3 {
-                                q[k] += gj[k];
-                            }
-                            let dj = d[j];
-                            let n = (dj[0] * dj[0] + dj[1] * dj[1] + dj[2] * dj[2] + EPS).sqrt();
-                            let dot = (gj[0] * dj[0] + gj[1] * dj[1] + gj[2] * dj[2]) / (n * n);
-                            for k in 0..3 {
-                                gd[j][k] = l[j - 1] / n * (gj[k] - dj[k] * dot);
-                            }
-                        }
+                        let gd = fk_row_backward(&d, l, &mut gp);
                         // Bone vectors → raw joints (a joint minus its parent).
                         let mut graw = [[0.0f32; 3]; NUM_JOINTS];
                         for j in 1..NUM_JOINTS {
