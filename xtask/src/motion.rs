@@ -39,8 +39,9 @@ pub struct RunArgs {
     /// Split of real windows to reconstruct and compare with.
     #[arg(long, default_value = "test")]
     pub split: String,
-    /// Real frames of a training window each generated motion continues
-    /// (read through the posterior; the motion starts at the last of them).
+    /// Real frames each generated motion continues, of a training window
+    /// (`sample`, `eval --contexts train`) or of its `--split` window
+    /// (`eval`); read through the posterior, the motion starts at the last.
     #[arg(long, default_value_t = generate::CONTEXT)]
     pub context: usize,
 }

@@ -25,7 +25,7 @@
 
 use crate::blocks::feet::{self, ground, lock, TOES};
 use crate::blocks::scan::ScanDims;
-use crate::blocks::skeleton::{bone_lengths, place, BONES};
+use crate::blocks::skeleton::{bone_lengths, place, row_bone_lengths, BONES};
 use crate::blocks::{
     self, filter, gaussian_kl, latent_lstm, linear, lstm_cell, squared_error, Act,
 };
@@ -571,7 +571,7 @@ impl Vrnn {
                 for (k, j) in joints.iter_mut().enumerate() {
                     *j = raw(row, 1 + k);
                 }
-                let lengths = bone_lengths(&[raw(row, 0)], &joints);
+                let lengths = row_bone_lengths(raw(row, 0), &joints);
                 for (m, l) in mean.iter_mut().zip(&lengths) {
                     *m += *l as f64;
                 }

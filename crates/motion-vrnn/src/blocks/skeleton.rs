@@ -193,22 +193,26 @@ impl CustomOp3 for FkOp {
 /// Bone lengths `[…, 18]` of joint positions `[…, 54]` with root height
 /// `y: […, 1]` (no gradient: a measurement of data).
 pub fn bone_lengths(y: &[f32], joints: &[f32]) -> Vec<f32> {
-    let rows = y.len();
-    let mut out = vec![0.0f32; rows * BONES];
-    for r in 0..rows {
-        let at = |j: usize| -> [f32; 3] {
-            if j == 0 {
-                [0.0, y[r], 0.0]
-            } else {
-                let p = &joints[(r * BONES + j - 1) * 3..][..3];
-                [p[0], p[1], p[2]]
-            }
-        };
-        for j in 1..NUM_JOINTS {
-            let (a, b) = (at(j), at(parent(j)));
-            let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-            out[r * BONES + j - 1] = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    (0..y.len())
+        .flat_map(|r| row_bone_lengths(y[r], &joints[r * 3 * BONES..][..3 * BONES]))
+        .collect()
+}
+
+/// [`bone_lengths`] of one row: root height `y`, joints `[54]`.
+pub fn row_bone_lengths(y: f32, joints: &[f32]) -> [f32; BONES] {
+    let at = |j: usize| -> [f32; 3] {
+        if j == 0 {
+            [0.0, y, 0.0]
+        } else {
+            let p = &joints[(j - 1) * 3..][..3];
+            [p[0], p[1], p[2]]
         }
+    };
+    let mut out = [0.0f32; BONES];
+    for (j, o) in out.iter_mut().enumerate().map(|(i, o)| (i + 1, o)) {
+        let (a, b) = (at(j), at(parent(j)));
+        let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        *o = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
     }
     out
 }
