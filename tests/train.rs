@@ -199,6 +199,37 @@ fn judging_starts_once_the_schedule_is_in_full() {
 }
 
 #[test]
+fn learning_rate_anneals_over_the_second_half() {
+    // 10 epochs at 1e-3, annealed to a tenth: constant for epochs 0–4, then
+    // 1e-3 · (0.1 + 0.9 · (1 + cos πp) / 2) with p = (epoch + 1 − 5) / 5.
+    let cfg = TrainConfig {
+        epochs: 10,
+        lr_final: Some(0.1),
+        ..TrainConfig::paper()
+    };
+    let want = [
+        (0, 1e-3),
+        (4, 1e-3),
+        (5, 1e-3 * (0.1 + 0.45 * (1.0 + 0.809_016_994_374_947_5))),
+        (7, 1e-3 * (0.1 + 0.45 * (1.0 - 0.309_016_994_374_947_4))),
+        (9, 1e-4),
+    ];
+    for (epoch, lr) in want {
+        assert!(
+            (cfg.lr(epoch) - lr).abs() < 1e-15,
+            "epoch {epoch}: {} against {lr}",
+            cfg.lr(epoch)
+        );
+    }
+    // The paper's schedule keeps its constant rate; the standard one anneals.
+    let paper = TrainConfig::paper();
+    assert!((0..paper.epochs).all(|e| paper.lr(e) == 1e-3));
+    let standard = TrainConfig::standard();
+    assert_eq!(standard.lr(199), 1e-3);
+    assert!((standard.lr(399) - 1e-4).abs() < 1e-15);
+}
+
+#[test]
 fn generated_motions_continue_their_real_context() {
     integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();

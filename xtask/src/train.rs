@@ -67,6 +67,10 @@ pub struct TrainArgs {
     /// Adam learning rate.
     #[arg(long)]
     pub lr: Option<f64>,
+    /// Learning rate of the last epoch as a share of --lr, reached along a
+    /// half cosine over the second half of the epochs (1: constant).
+    #[arg(long)]
+    pub lr_final: Option<f64>,
     /// Seed of initialisation, shuffling and noise.
     #[arg(long)]
     pub seed: Option<u64>,
@@ -169,6 +173,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     if let Some(v) = a.lr {
         cfg.adam.lr = v;
+    }
+    if let Some(v) = a.lr_final {
+        cfg.lr_final = (v != 1.0).then_some(v);
     }
     if let Some(v) = a.seed {
         cfg.seed = v;

@@ -56,6 +56,11 @@ impl Adam {
         })
     }
 
+    /// Set the learning rate of the next updates (a schedule's).
+    pub fn set_lr(&mut self, lr: f64) {
+        self.config.lr = lr;
+    }
+
     /// The variables, sorted by name.
     pub fn vars(&self) -> &[(String, Var)] {
         &self.vars

@@ -78,6 +78,11 @@ pub struct TrainConfig {
     /// How the `best` checkpoint is chosen.
     #[serde(default, skip_serializing_if = "Select::is_loss")]
     pub select: Select,
+    /// Learning rate of the last epoch as a share of `adam.lr`: the rate
+    /// stays at `adam.lr` over the first half of the epochs and falls along a
+    /// half cosine to this share over the second half (None: constant).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lr_final: Option<f64>,
 }
 
 /// How training chooses its `best` checkpoint.
@@ -119,13 +124,15 @@ impl TrainConfig {
             clip_grad_norm: None,
             early_stopping: None,
             select: Select::Loss,
+            lr_final: None,
         }
     }
 
     /// The default schedule (converges on the shared CMU samples in
     /// minutes): the default model, batch 64, 400 epochs, KL warm-up over 20
     /// epochs, clipping at 100, early stopping after 60 epochs without
-    /// improvement, `best` chosen by generated motion every 5 epochs.
+    /// improvement, `best` chosen by generated motion every 5 epochs, the
+    /// learning rate annealed to a tenth over the second half.
     pub fn standard() -> Self {
         TrainConfig {
             model: Config::named(crate::model::DEFAULT_MODEL).unwrap_or_default(),
@@ -135,6 +142,7 @@ impl TrainConfig {
             clip_grad_norm: Some(100.0),
             early_stopping: Some(60),
             select: Select::Generation { every: 5 },
+            lr_final: Some(0.1),
             ..Self::paper()
         }
     }
@@ -175,6 +183,20 @@ impl TrainConfig {
             0
         };
         self.kl_warmup_epochs.max(feed).min(self.epochs)
+    }
+
+    /// Learning rate in `epoch` (0-based): `adam.lr` over the first half of
+    /// the epochs, then a half cosine down to `adam.lr × lr_final` at the
+    /// last epoch.
+    pub fn lr(&self, epoch: usize) -> f64 {
+        let Some(last) = self.lr_final else {
+            return self.adam.lr;
+        };
+        let half = self.epochs / 2;
+        let span = self.epochs.saturating_sub(half).max(1);
+        let p = ((epoch + 1).saturating_sub(half) as f64 / span as f64).min(1.0);
+        let share = last + (1.0 - last) * 0.5 * (1.0 + (std::f64::consts::PI * p).cos());
+        self.adam.lr * share
     }
 
     /// Share of frames fed back in `epoch` (0-based; scheduled sampling):
@@ -225,6 +247,10 @@ pub struct EpochMetrics {
     pub val_kl: f64,
     /// KL weight used.
     pub kl_weight: f64,
+    /// Learning rate used ([`TrainConfig::lr`]; absent in runs from before
+    /// the schedule existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lr: Option<f64>,
     /// Training throughput, windows per second.
     pub windows_per_s: f64,
     /// Seconds of this epoch (judging included).
@@ -617,6 +643,7 @@ pub fn train(
         }
         let started = std::time::Instant::now();
         let kl_w = config.kl_weight(epoch);
+        adam.set_lr(config.lr(epoch));
         let perm = Rng::new(config.seed, 1000 + epoch as u64).permutation(train.n);
         let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
         for chunk in perm.chunks(config.batch) {
@@ -673,6 +700,7 @@ pub fn train(
             val_recon,
             val_kl,
             kl_weight: kl_w,
+            lr: Some(config.lr(epoch)),
             windows_per_s: seen as f64 / train_secs.max(1e-9),
             seconds: 0.0,
             generated: None,
