@@ -18,7 +18,7 @@ use motion_vrnn::data::{Dataset, Stats, Windows};
 use motion_vrnn::generate::{self, to_poses};
 use motion_vrnn::train::{evaluate, layout, load_model, CheckpointMeta, Trained};
 use motion_vrnn::MotionModel;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// Where a run's model and data come from.
@@ -81,7 +81,7 @@ pub struct EvalArgs {
 }
 
 /// Where `eval` takes the real frames its generated motions continue.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Contexts {
     /// Every window of the evaluated split, once each.
@@ -473,7 +473,7 @@ pub fn export(a: ExportArgs) -> Result<()> {
 }
 
 /// What `eval.json` holds.
-#[derive(Serialize)]
+#[derive(Serialize, Deserialize)]
 pub struct EvalReport {
     pub run: String,
     pub checkpoint: String,
@@ -500,6 +500,11 @@ pub struct EvalReport {
     pub frechet_reconstructed: f64,
     /// Reference: train windows against the split.
     pub frechet_train: f64,
+    /// Reference of the generated set's sample size: train windows, as many
+    /// as the split has, against the split, for each of the disjoint subsets
+    /// of [`motion_metrics::frechet_of_subsets`].
+    #[serde(default)]
+    pub frechet_train_subsets: Vec<f64>,
     pub options: Options,
 }
 
@@ -556,6 +561,7 @@ pub fn report(a: &RunArgs, contexts: Contexts) -> Result<EvalReport> {
     let summaries = |set: &[Vec<f32>]| generate::summaries(set, NUM_FEATURES);
     let train_windows = generate::windows_of(split(&m, "train")?);
     let s_real = summaries(&real);
+    let s_train = summaries(&train_windows);
     let report = EvalReport {
         run: a.run.display().to_string(),
         checkpoint: a.checkpoint.clone(),
@@ -574,7 +580,8 @@ pub fn report(a: &RunArgs, contexts: Contexts) -> Result<EvalReport> {
         high_freq_ratio: sg.high_freq_share / sr.high_freq_share,
         frechet_generated: motion_metrics::frechet(&s_real, &summaries(&gen)),
         frechet_reconstructed: motion_metrics::frechet(&s_real, &summaries(&rec)),
-        frechet_train: motion_metrics::frechet(&s_real, &summaries(&train_windows)),
+        frechet_train: motion_metrics::frechet(&s_real, &s_train),
+        frechet_train_subsets: motion_metrics::frechet_of_subsets(&s_real, &s_train),
         real: sr,
         reconstructed: sc,
         generated: sg,
@@ -642,5 +649,26 @@ pub fn markdown(r: &EvalReport) -> String {
         "\nFréchet distance to the real `{}` windows (summaries: per-window mean and std of the 58 normalised features): generated **{:.2}**, reconstructed {:.2}, train windows {:.2} (reference).\n",
         r.split, r.frechet_generated, r.frechet_reconstructed, r.frechet_train
     );
+    let d = &r.frechet_train_subsets;
+    if !d.is_empty() {
+        let (lo, hi) = d
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        s += &format!(
+            "Train windows {} at a time (the generated set's size; {} disjoint draws): mean {:.2}, {:.2}–{:.2}.\n",
+            r.windows,
+            d.len(),
+            mean_of(d),
+            lo,
+            hi
+        );
+    }
     s
+}
+
+/// Mean of `v` (NaN when empty).
+pub fn mean_of(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
 }

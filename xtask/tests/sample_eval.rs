@@ -257,6 +257,10 @@ fn sample_and_eval_write_what_they_promise() {
         }
     }
     assert!(f("frechet_generated") >= 0.0 && f("frechet_train") >= 0.0);
+    // The test-sized reference: train windows drawn as many as val has.
+    let subsets = v["frechet_train_subsets"].as_array().unwrap();
+    assert!(!subsets.is_empty());
+    assert!(subsets.iter().all(|d| d.as_f64().unwrap() >= 0.0));
     // The default model places joints by forward kinematics: generated bones
     // keep the lengths of the window each motion started from.
     assert!(v["generated"]["bone_cv"].as_f64().unwrap() < 1e-4);

@@ -411,6 +411,27 @@ pub fn frechet(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
     (d2 + tr(&ca) + tr(&cb) - 2.0 * tr_sqrt).max(0.0)
 }
 
+/// Fréchet distances of `real` to subsets of `pool` the size of `real`:
+/// `k = ⌊|pool| ÷ |real|⌋` disjoint interleaved subsets (subset `j` takes
+/// pool items `j, j + k, j + 2k, …`), so each spreads over the whole pool.
+/// A reference of the same sample size as a set of `|real|` generated
+/// windows: with few windows in many dimensions the distance grows as the
+/// sets shrink, so [`frechet`] against the whole pool is the stricter
+/// reference. Empty when the pool has fewer items than `real`.
+pub fn frechet_of_subsets(real: &[Vec<f64>], pool: &[Vec<f64>]) -> Vec<f64> {
+    let n = real.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let k = pool.len() / n;
+    (0..k)
+        .map(|j| {
+            let subset: Vec<Vec<f64>> = pool[j..].iter().step_by(k).take(n).cloned().collect();
+            frechet(real, &subset)
+        })
+        .collect()
+}
+
 /// Bone-length variation a generated motion may have before
 /// [`goal_distance`] counts it (the goal of issue 11: 1 %).
 pub const BONE_CV_GOAL: f64 = 0.01;
@@ -569,6 +590,19 @@ mod tests {
             .map(|r| vec![2.0 * r[0] - 0.5, 2.0 * r[1] - 0.5])
             .collect();
         assert!((frechet(&a, &c) - 2.0 / 3.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn frechet_of_interleaved_subsets() {
+        // A pool of 5 points for a real set of 2: k = 2 subsets, {0, 2} and
+        // {1, 3}; point 4 is left over.
+        let real = vec![vec![0.0], vec![2.0]];
+        let pool: Vec<Vec<f64>> = [0.0, 10.0, 2.0, 12.0, 99.0].map(|x| vec![x]).to_vec();
+        let d = frechet_of_subsets(&real, &pool);
+        assert_eq!(d.len(), 2);
+        // Same points: 0. Shifted by 10: 100.
+        assert!(d[0].abs() < 1e-9 && (d[1] - 100.0).abs() < 1e-9, "{d:?}");
+        assert!(frechet_of_subsets(&real, &pool[..1]).is_empty());
     }
 
     #[test]
