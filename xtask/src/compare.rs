@@ -274,7 +274,7 @@ pub fn run(a: CompareArgs) -> Result<()> {
         }
         table.push((name.clone(), runs));
     }
-    let md = page(&a, &table);
+    let md = page(&a, &table)?;
     motion_render::write_file(&a.page, md.as_bytes())?;
     println!("{md}");
     eprintln!("wrote {}", a.page.display());
@@ -305,7 +305,7 @@ fn header(first: &str, table: &[(String, Vec<Run>)]) -> String {
     s + "\n"
 }
 
-fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
+fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> Result<String> {
     let mut s = String::from("# Results: every model, several seeds\n\n");
     let _ = writeln!(
         s,
@@ -346,7 +346,12 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
     }
     s += "\n## Goals met (issue 11): on the mean over the seeds, and seed by seed\n\n";
     s += &header("goal", table);
-    let means: Vec<Option<EvalReport>> = table.iter().map(|(_, r)| mean_report(r).ok()).collect();
+    let means = table
+        .iter()
+        .map(|(name, runs)| {
+            mean_report(runs).with_context(|| format!("averaging the reports of {name}"))
+        })
+        .collect::<Result<Vec<EvalReport>>>()?;
     let mark = |ok: bool| if ok { "✓" } else { "✗" };
     for (goal, ok) in GOALS {
         let _ = write!(s, "| {goal} |");
@@ -355,8 +360,7 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
                 .iter()
                 .map(|r| format!("{}{}", r.seed, mark(ok(&r.report))))
                 .collect();
-            let on_mean = mean.as_ref().map_or("?", |m| mark(ok(m)));
-            let _ = write!(s, " **mean {on_mean}** · {} |", marks.join(" "));
+            let _ = write!(s, " **mean {}** · {} |", mark(ok(mean)), marks.join(" "));
         }
         s += "\n";
     }
@@ -364,7 +368,7 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> String {
     for (name, _) in table {
         let _ = writeln!(s, "### `{name}`\n\n![{name}](images/results/{name}.png)\n");
     }
-    s
+    Ok(s)
 }
 
 #[cfg(test)]

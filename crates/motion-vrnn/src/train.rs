@@ -643,7 +643,8 @@ pub fn train(
         }
         let started = std::time::Instant::now();
         let kl_w = config.kl_weight(epoch);
-        adam.set_lr(config.lr(epoch));
+        let lr = config.lr(epoch);
+        adam.set_lr(lr);
         let perm = Rng::new(config.seed, 1000 + epoch as u64).permutation(train.n);
         let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
         for chunk in perm.chunks(config.batch) {
@@ -700,7 +701,7 @@ pub fn train(
             val_recon,
             val_kl,
             kl_weight: kl_w,
-            lr: Some(config.lr(epoch)),
+            lr: Some(lr),
             windows_per_s: seen as f64 / train_secs.max(1e-9),
             seconds: 0.0,
             generated: None,
