@@ -43,7 +43,7 @@ struct Run {
 /// A measure of the results table: name, value, decimals.
 type Measure = (&'static str, fn(&EvalReport) -> f64, usize);
 
-const MEASURES: [Measure; 15] = [
+const MEASURES: [Measure; 16] = [
     (
         "jerk ÷ real, generated",
         |r| r.generated.jerk_m_s3 / r.real.jerk_m_s3,
@@ -98,6 +98,11 @@ const MEASURES: [Measure; 15] = [
         1,
     ),
     ("Fréchet, reconstructed", |r| r.frechet_reconstructed, 2),
+    (
+        "within-window spread ÷ real, generated",
+        |r| r.spread.generated / r.spread.real,
+        2,
+    ),
     ("test negative ELBO per frame", |r| r.neg_elbo_per_frame, 3),
 ];
 
@@ -182,7 +187,7 @@ fn within(x: f64) -> bool {
 
 fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len().max(1) as f64;
-    let m = v.iter().sum::<f64>() / n;
+    let m = motion::mean_of(v);
     let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
     (m, var.sqrt())
 }

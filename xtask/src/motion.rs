@@ -505,7 +505,19 @@ pub struct EvalReport {
     /// of [`motion_metrics::frechet_of_subsets`].
     #[serde(default)]
     pub frechet_train_subsets: Vec<f64>,
+    /// Within-window spread ([`motion_metrics::mean_spread`]) of the real,
+    /// reconstructed and generated windows, in normalised units.
+    #[serde(default)]
+    pub spread: Spread,
     pub options: Options,
+}
+
+/// Within-window spread of each set ([`motion_metrics::mean_spread`]).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Spread {
+    pub real: f64,
+    pub reconstructed: f64,
+    pub generated: f64,
 }
 
 /// `cargo xtask eval`.
@@ -562,6 +574,7 @@ pub fn report(a: &RunArgs, contexts: Contexts) -> Result<EvalReport> {
     let train_windows = generate::windows_of(split(&m, "train")?);
     let s_real = summaries(&real);
     let s_train = summaries(&train_windows);
+    let (s_rec, s_gen) = (summaries(&rec), summaries(&gen));
     let report = EvalReport {
         run: a.run.display().to_string(),
         checkpoint: a.checkpoint.clone(),
@@ -578,10 +591,15 @@ pub fn report(a: &RunArgs, contexts: Contexts) -> Result<EvalReport> {
         kl_per_frame: kl / t,
         jerk_ratio: sg.jerk_m_s3 / sr.jerk_m_s3,
         high_freq_ratio: sg.high_freq_share / sr.high_freq_share,
-        frechet_generated: motion_metrics::frechet(&s_real, &summaries(&gen)),
-        frechet_reconstructed: motion_metrics::frechet(&s_real, &summaries(&rec)),
+        frechet_generated: motion_metrics::frechet(&s_real, &s_gen),
+        frechet_reconstructed: motion_metrics::frechet(&s_real, &s_rec),
         frechet_train: motion_metrics::frechet(&s_real, &s_train),
         frechet_train_subsets: motion_metrics::frechet_of_subsets(&s_real, &s_train),
+        spread: Spread {
+            real: motion_metrics::mean_spread(&s_real),
+            reconstructed: motion_metrics::mean_spread(&s_rec),
+            generated: motion_metrics::mean_spread(&s_gen),
+        },
         real: sr,
         reconstructed: sc,
         generated: sg,
@@ -665,10 +683,19 @@ pub fn markdown(r: &EvalReport) -> String {
             hi
         );
     }
+    let sp = &r.spread;
+    s += &format!(
+        "Within-window spread (each normalised feature's std over its window, averaged; the std half of the summaries): real {:.3}, reconstructed {:.3} ({}), generated {:.3} ({}).\n",
+        sp.real,
+        sp.reconstructed,
+        ratio(sp.reconstructed, sp.real),
+        sp.generated,
+        ratio(sp.generated, sp.real)
+    );
     s
 }
 
-/// Mean of `v` (NaN when empty).
+/// Mean of `v` (0 when empty).
 pub fn mean_of(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len() as f64
+    v.iter().sum::<f64>() / v.len().max(1) as f64
 }

@@ -411,6 +411,22 @@ pub fn frechet(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
     (d2 + tr(&ca) + tr(&cb) - 2.0 * tr_sqrt).max(0.0)
 }
 
+/// Within-window spread of a set of [`window_summary`]s: the mean, over
+/// windows and features, of each feature's standard deviation over its
+/// window (the second half of a summary). How far a motion moves through
+/// the feature space within its window; 0 for an empty set.
+pub fn mean_spread(summaries: &[Vec<f64>]) -> f64 {
+    let (sum, n) = summaries.iter().fold((0.0, 0usize), |(s, n), r| {
+        let half = &r[r.len() / 2..];
+        (s + half.iter().sum::<f64>(), n + half.len())
+    });
+    if n == 0 {
+        0.0
+    } else {
+        sum / n as f64
+    }
+}
+
 /// Fréchet distances of `real` to subsets of `pool` the size of `real`:
 /// `k = ⌊|pool| ÷ |real|⌋` disjoint interleaved subsets (subset `j` takes
 /// pool items `j, j + k, j + 2k, …`), so each spreads over the whole pool.
@@ -590,6 +606,17 @@ mod tests {
             .map(|r| vec![2.0 * r[0] - 0.5, 2.0 * r[1] - 0.5])
             .collect();
         assert!((frechet(&a, &c) - 2.0 / 3.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn spread_of_two_windows() {
+        // Window 1: feature a goes 0, 2 (std 1), feature b stays (std 0);
+        // window 2: a stays, b goes 1, 5 (std 2). Mean of 1, 0, 0, 2.
+        let w1 = vec![vec![0.0, 3.0], vec![2.0, 3.0]];
+        let w2 = vec![vec![1.0, 1.0], vec![1.0, 5.0]];
+        let s = [window_summary(&w1), window_summary(&w2)];
+        assert!((mean_spread(&s) - 0.75).abs() < 1e-12);
+        assert_eq!(mean_spread(&[]), 0.0);
     }
 
     #[test]
