@@ -175,7 +175,7 @@ fn average(values: &[serde_json::Value]) -> serde_json::Value {
             if values.iter().all(Value::is_f64) && values.iter().any(|v| v != &values[0]) =>
         {
             let xs: Vec<f64> = values.iter().filter_map(Value::as_f64).collect();
-            serde_json::json!(xs.iter().sum::<f64>() / xs.len() as f64)
+            serde_json::json!(motion::mean_of(&xs))
         }
         first => first.clone(),
     }

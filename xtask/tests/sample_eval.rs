@@ -261,6 +261,11 @@ fn sample_and_eval_write_what_they_promise() {
     let subsets = v["frechet_train_subsets"].as_array().unwrap();
     assert!(!subsets.is_empty());
     assert!(subsets.iter().all(|d| d.as_f64().unwrap() >= 0.0));
+    // Within-window spread of each set: real windows move, and so do the
+    // reconstructed and generated ones.
+    for set in ["real", "reconstructed", "generated"] {
+        assert!(v["spread"][set].as_f64().unwrap() > 0.0, "spread {set}");
+    }
     // The default model places joints by forward kinematics: generated bones
     // keep the lengths of the window each motion started from.
     assert!(v["generated"]["bone_cv"].as_f64().unwrap() < 1e-4);
