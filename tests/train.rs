@@ -93,6 +93,31 @@ fn train_checkpoint_reload_gives_the_same_loss() {
 }
 
 #[test]
+fn a_learning_rate_that_cannot_train_is_refused() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = load(&small_dataset(tmp.path()), &["train", "val"]).unwrap();
+    let dev = candle_core::Device::Cpu;
+    let refused = |cfg: TrainConfig, what: &str| {
+        let run = tmp.path().join(what);
+        let err = train(&data, &cfg, &run, false, &dev, &Quiet).err().unwrap();
+        assert!(err.to_string().contains(what), "{err}");
+        // Refused before anything is written.
+        assert!(!run.join(layout::LAST).exists());
+    };
+    let mut cfg = tiny_config();
+    cfg.adam.lr = -1e-3;
+    refused(cfg, "learning rate must be positive");
+    for f in [0.0, -0.5, 1.5, f64::NAN] {
+        let cfg = TrainConfig {
+            lr_final: Some(f),
+            ..tiny_config()
+        };
+        refused(cfg, "--lr-final");
+    }
+}
+
+#[test]
 fn a_non_finite_loss_stops_with_the_step_and_keeps_the_checkpoint() {
     integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();

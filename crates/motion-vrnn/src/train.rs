@@ -562,6 +562,17 @@ pub fn train(
     if config.batch == 0 {
         return Err(TrainError::Invalid("batch must be positive".into()));
     }
+    let lr = config.adam.lr;
+    if !(lr.is_finite() && lr > 0.0) {
+        return Err(TrainError::Invalid(format!(
+            "the learning rate must be positive and finite, got {lr}"
+        )));
+    }
+    if let Some(f) = config.lr_final.filter(|f| !(*f > 0.0 && *f <= 1.0)) {
+        return Err(TrainError::Invalid(format!(
+            "the final learning rate share (--lr-final) must be in (0, 1], got {f}"
+        )));
+    }
     let val = data.splits.get("val").filter(|w| w.n > 0);
     std::fs::create_dir_all(run).map_err(|e| io_err(run, e))?;
     let metrics_path = run.join(layout::METRICS);
