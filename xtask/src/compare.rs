@@ -224,6 +224,8 @@ pub fn run(a: CompareArgs) -> Result<()> {
                     feet_weight: None,
                     kl_weight: None,
                     self_feed: None,
+                    feed_rounds: None,
+                    temperature: None,
                     preset: Preset::Standard,
                     epochs: a.epochs,
                     batch: None,
@@ -248,6 +250,7 @@ pub fn run(a: CompareArgs) -> Result<()> {
                 seed: 0,
                 split: "test".into(),
                 context: motion_vrnn::generate::CONTEXT,
+                temperature: None,
             };
             let report = motion::report(&run_args, motion::Contexts::Split)
                 .with_context(|| format!("evaluating {}", dir.display()))?;
@@ -316,7 +319,7 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> Result<String> {
         s,
         "Written by `cargo xtask compare --data {} --page {}` ({} seeds per model, the `standard` schedule{}). \
          Each run is evaluated as `cargo xtask eval` does: its `best` checkpoint, the 51-odd real `test` windows, \
-         one generated motion of 128 frames per test window (sampling seed 0, each continuing the first 16 frames of its window), \
+         one generated motion of 128 frames per test window (sampling seed 0, at the model's temperature, each continuing the first 16 frames of its window), \
          and the reconstructions of the test windows. Every value is the mean ± std over the seeds; \
          measures are defined in [metrics.md](metrics.md).\n",
         a.data.display(),
@@ -349,6 +352,8 @@ fn page(a: &CompareArgs, table: &[(String, Vec<Run>)]) -> Result<String> {
         }
         s += "\n";
     }
+    s += "\nTraining time is the wall-clock time of a run's epochs as it was trained (`metrics.jsonl`), \
+          so it depends on what else the machine was doing then; `cargo xtask bench-train` compares speeds.\n";
     s += "\n## Goals met (issue 11): on the mean over the seeds, and seed by seed\n\n";
     s += &header("goal", table);
     let means = table

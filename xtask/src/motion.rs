@@ -44,6 +44,10 @@ pub struct RunArgs {
     /// (`eval`); read through the posterior, the motion starts at the last.
     #[arg(long, default_value_t = generate::CONTEXT)]
     pub context: usize,
+    /// Sampling temperature (scale of the prior's std), instead of the
+    /// model's own (`docs/training.md`; 1: the prior as trained).
+    #[arg(long)]
+    pub temperature: Option<f64>,
 }
 
 /// `cargo xtask sample` options.
@@ -138,8 +142,14 @@ fn load(a: &RunArgs, splits: &[&str]) -> Result<Loaded> {
             a.run.display()
         );
     }
-    let (model, meta) =
+    let (mut model, meta) =
         load_model(&ck, &device).with_context(|| format!("loading {}", ck.display()))?;
+    if let Some(t) = a.temperature {
+        model
+            .model
+            .set_temperature(Some(t))
+            .context("--temperature")?;
+    }
     let dir = a
         .data
         .clone()
@@ -484,6 +494,9 @@ pub struct EvalReport {
     /// Real frames each generated motion continues, and whose.
     pub context: usize,
     pub contexts: Contexts,
+    /// Sampling temperature of the generated motions (1: the prior as is).
+    #[serde(default = "one")]
+    pub temperature: f64,
     pub windows: usize,
     pub frames: usize,
     /// Per frame, on the split, with the training noise convention.
@@ -510,6 +523,10 @@ pub struct EvalReport {
     #[serde(default)]
     pub spread: Spread,
     pub options: Options,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// Within-window spread of each set ([`motion_metrics::mean_spread`]).
@@ -584,6 +601,7 @@ pub fn report(a: &RunArgs, contexts: Contexts) -> Result<EvalReport> {
         seed: a.seed,
         context: a.context,
         contexts,
+        temperature: m.model.model.config().parts.temperature.unwrap_or(1.0),
         windows: w.n,
         frames: w.length,
         neg_elbo_per_frame: (recon + kl) / t,
@@ -610,8 +628,8 @@ pub fn report(a: &RunArgs, contexts: Contexts) -> Result<EvalReport> {
 
 pub fn markdown(r: &EvalReport) -> String {
     let mut s = format!(
-        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}), each continuing the first {} frames of {}.\n\n",
-        r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed, r.context,
+        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}, temperature {}), each continuing the first {} frames of {}.\n\n",
+        r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed, r.temperature, r.context,
         match r.contexts {
             Contexts::Split => format!("one `{}` window (every window once)", r.split),
             Contexts::Train => "a random training window".to_string(),

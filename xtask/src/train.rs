@@ -55,6 +55,14 @@ pub struct TrainArgs {
     /// training (scheduled sampling; 0: off).
     #[arg(long)]
     pub self_feed: Option<f64>,
+    /// Override the model's rounds of feeding back (each round's
+    /// predictions are made from the previous round's; 1: one step deep).
+    #[arg(long)]
+    pub feed_rounds: Option<usize>,
+    /// Override the model's sampling temperature (scale of the prior's
+    /// std when generating, also for the checkpoint judge; 1: as trained).
+    #[arg(long)]
+    pub temperature: Option<f64>,
     /// Starting point for every option below.
     #[arg(long, value_enum, default_value_t = Preset::Standard)]
     pub preset: Preset,
@@ -164,6 +172,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
     }
     if let Some(v) = a.kl_weight {
         parts.kl_weight = (v != 1.0).then_some(v);
+    }
+    if let Some(v) = a.feed_rounds {
+        parts.feed_rounds = (v != 1).then_some(v);
+    }
+    if let Some(v) = a.temperature {
+        parts.temperature = (v != 1.0).then_some(v);
     }
     if let Some(v) = a.epochs {
         cfg.epochs = v;

@@ -236,16 +236,7 @@ fn sample_and_eval_write_what_they_promise() {
 
     // Evaluation against the val windows.
     let e = tmp.path().join("e");
-    let o = xtask()
-        .args(["eval", "--split", "val", "--run"])
-        .arg(&run)
-        .arg("--out")
-        .arg(&e)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(e.join("eval.json")).unwrap()).unwrap();
+    let v = eval_val(&run, &e, &[]);
     let f = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k} missing"));
     assert!(v["windows"].as_u64().unwrap() > 0);
     assert!((f("recon_per_frame") + f("kl_per_frame") - f("neg_elbo_per_frame")).abs() < 1e-9);
@@ -294,6 +285,22 @@ fn sample_and_eval_write_what_they_promise() {
         .map(|m| m["frames"][0].to_string())
         .collect();
     assert!(firsts.len() > 1, "every motion starts from the same pose");
+}
+
+/// `cargo xtask eval --split val` of `run` into `out` (with `extra`
+/// options): its `eval.json`.
+fn eval_val(run: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let o = xtask()
+        .args(["eval", "--split", "val"])
+        .args(extra)
+        .arg("--run")
+        .arg(run)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap()
 }
 
 /// Every named model trains (one epoch), records itself in its checkpoint,
@@ -346,5 +353,24 @@ fn every_model_trains_samples_and_evaluates() {
             assert!(cv > 1e-4, "{name}: bone cv {cv}");
         }
         assert!(run.join("samples/contact_sheet.png").exists(), "{name}");
+        // The report says at which temperature it sampled: the model's, or
+        // the one asked for.
+        let own = config.parts.temperature.unwrap_or(1.0);
+        assert_eq!(v["temperature"].as_f64(), Some(own), "{name}");
+        if name == "motion" {
+            let t1 = eval_val(&run, &run.join("eval-t1"), &["--temperature", "1"]);
+            assert_eq!(t1["temperature"].as_f64(), Some(1.0));
+            assert_ne!(
+                t1["generated"], v["generated"],
+                "the temperature changed nothing"
+            );
+            let bad = xtask()
+                .args(["eval", "--split", "val", "--temperature", "0", "--run"])
+                .arg(&run)
+                .output()
+                .unwrap();
+            assert!(!bad.status.success());
+            assert!(String::from_utf8_lossy(&bad.stderr).contains("temperature must be positive"));
+        }
     }
 }

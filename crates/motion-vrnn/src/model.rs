@@ -21,7 +21,10 @@
 //!   training set's mean skeleton (sampling), so bones cannot stretch;
 //! - `latent_filter`: the decoder reads the latent through a causal
 //!   low-pass filter over time, so a per-step latent draw cannot make the
-//!   pose jump (the paper's "filter over time inside the model").
+//!   pose jump (the paper's "filter over time inside the model");
+//! - `self_feed`, `feed_rounds`: scheduled sampling, rolled out over one or
+//!   more rounds; `temperature`: the prior's spread when sampling;
+//! - the rest (output filter, feet) on [`Parts`].
 
 use crate::blocks::feet::{self, ground, lock, TOES};
 use crate::blocks::scan::ScanDims;
@@ -107,12 +110,27 @@ pub struct Parts {
     /// the latent may carry more of each motion (a β-VAE with β < 1).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kl_weight: Option<f64>,
+    /// Rounds of scheduled sampling (None: 1). In round `r + 1` the
+    /// recurrence that predicts the fed-back frames reads round `r`'s, so a
+    /// run of consecutive fed frames is rolled out up to this many steps
+    /// deep on the model's own motion.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub feed_rounds: Option<usize>,
+    /// Sampling temperature: the scale of the prior's standard deviation
+    /// when generating (None: 1). Training and the ELBO do not use it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub temperature: Option<f64>,
 }
 
 impl Parts {
     /// Nothing beyond the paper.
     pub fn is_paper(&self) -> bool {
         *self == Parts::default()
+    }
+
+    /// Rounds of scheduled sampling ([`Parts::feed_rounds`]).
+    pub fn rounds(&self) -> usize {
+        self.feed_rounds.unwrap_or(1)
     }
 }
 
@@ -152,12 +170,15 @@ pub const MODELS: [(&str, &str); 6] = [
     ("skeletal", "the paper's VRNN, each decoded bone rescaled to a fixed length by forward kinematics"),
     ("feet", "skeletal, with foot contacts predicted, the root moved by the planted feet, and a penalty on toes that slide in contact"),
     ("fed", "the paper's VRNN, trained on its own one-step predictions for half its frames (scheduled sampling)"),
-    ("motion", "smooth, skeletal, feet and fed together"),
+    ("motion", "smooth, skeletal, feet and fed together, fed back in two rounds, sampled at temperature 0.7"),
 ];
 
 /// The largest share of frames fed back in the models that do (`fed`,
 /// `motion`).
 pub const SELF_FEED: f64 = 0.5;
+
+/// The sampling temperature of `motion` ([`Parts::temperature`]).
+pub const MOTION_TEMPERATURE: f64 = 0.7;
 
 impl Config {
     /// The model called `name` in [`MODELS`].
@@ -189,6 +210,8 @@ impl Config {
                 feet: 1.0,
                 foot_lock: true,
                 self_feed: SELF_FEED,
+                feed_rounds: Some(2),
+                temperature: Some(MOTION_TEMPERATURE),
                 ..smooth
             },
             _ => return None,
@@ -296,7 +319,8 @@ pub trait MotionModel: Send + Sync {
     /// With `start: [B, K, input]`, the first `K` frames are those real
     /// frames, read through the posterior (so the state and the latent
     /// filter start where real motion would put them); the prior takes over
-    /// at frame `K`.
+    /// at frame `K`. Prior draws use the noise scaled by the model's
+    /// [`Parts::temperature`].
     fn sample(&self, eps: &Tensor, start: Option<&Tensor>) -> Result<Tensor>;
 }
 
@@ -375,10 +399,10 @@ impl Vrnn {
         if !(0.0..=1.0).contains(&c.parts.self_feed) {
             candle_core::bail!("self_feed must be in [0, 1], got {}", c.parts.self_feed);
         }
-        if let Some(w) = c.parts.kl_weight {
-            if !(w.is_finite() && w > 0.0) {
-                candle_core::bail!("kl_weight must be positive, got {w}");
-            }
+        positive("kl_weight", c.parts.kl_weight)?;
+        positive("temperature", c.parts.temperature)?;
+        if c.parts.rounds() == 0 {
+            candle_core::bail!("feed_rounds must be at least 1");
         }
         let gaussian = |input: usize, vb: VarBuilder| -> Result<[Lin; 2]> {
             Ok([
@@ -549,6 +573,14 @@ impl Vrnn {
         }
     }
 
+    /// Sample at temperature `t` ([`Parts::temperature`]; None: 1) instead
+    /// of the one the model was trained with.
+    pub fn set_temperature(&mut self, t: Option<f64>) -> Result<()> {
+        positive("temperature", t)?;
+        self.config.parts.temperature = t;
+        Ok(())
+    }
+
     /// Each window's bone lengths (mean over its frames) for every row:
     /// `[B, T, 18]`, or `None` without the skeleton part.
     fn window_bones(&self, x: &Tensor) -> Result<Option<Tensor>> {
@@ -588,8 +620,10 @@ impl Vrnn {
     /// Scheduled sampling: `x` with the frames where `mask: [B, T]` is 1
     /// replaced by the model's own one-step prediction, as sampling makes
     /// it (latent drawn from the prior, `N(0, I)` at the first step, with
-    /// the same noise; state from the real frames before; the whole
-    /// decoder). No gradient flows through the replacement.
+    /// the same noise; the whole decoder). The state comes from the real
+    /// frames in the first round, and from the previous round's frames in
+    /// each later one ([`Parts::feed_rounds`]). No gradient flows through
+    /// the replacement.
     fn fed_back(
         &self,
         x: &Tensor,
@@ -599,17 +633,21 @@ impl Vrnn {
         lengths: Option<&Tensor>,
     ) -> Result<Tensor> {
         let t = x.dim(1)?;
-        let s = self.scan(feat, None, eps)?;
-        let p = stacked(&self.prior[0], &self.prior[1])?.forward(&s.h, Act::None)?;
-        let z = draw(&p, eps, self.config.latent)?;
-        let z = if t > 1 {
-            Tensor::cat(&[&eps.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
-        } else {
-            eps.clone()
-        };
-        let own = self.decode(&z, &s.h, lengths)?.0.detach();
+        let prior = stacked(&self.prior[0], &self.prior[1])?;
         let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
-        x + ((own - x)? * m)?
+        let mut fed: Option<Tensor> = None;
+        for _ in 0..self.config.parts.rounds() {
+            let s = self.scan(feat, fed.as_ref(), eps)?;
+            let z = draw(&prior.forward(&s.h, Act::None)?, eps, self.config.latent)?;
+            let z = if t > 1 {
+                Tensor::cat(&[&eps.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
+            } else {
+                eps.clone()
+            };
+            let own = self.decode(&z, &s.h, lengths)?.0.detach();
+            fed = Some((x + ((own - x)? * &m)?)?);
+        }
+        fed.ok_or_else(|| candle_core::Error::Msg("feed_rounds must be at least 1".into()))
     }
 
     /// The mean skeleton for `b` sequences (sampling): `[b, 18]`.
@@ -718,8 +756,13 @@ impl MotionModel for Vrnn {
                     let q = encoder.forward(&Tensor::cat(&[&feat, &h], 1)?, Act::None)?;
                     (Some((x, feat)), draw(&q, &e, c.latent)?)
                 }
-                None if step == 0 => (None, e),
-                None => (None, draw(&prior.forward(&h, Act::None)?, &e, c.latent)?),
+                None => {
+                    let e = (e * c.parts.temperature.unwrap_or(1.0))?;
+                    match step {
+                        0 => (None, e),
+                        _ => (None, draw(&prior.forward(&h, Act::None)?, &e, c.latent)?),
+                    }
+                }
             };
             let zd = step_filter(&zf, z.clone(), rho)?;
             // The decoder runs on start frames too, so its output filter has
@@ -750,6 +793,16 @@ impl MotionModel for Vrnn {
             frames.push(x);
         }
         Tensor::stack(&frames, 1)
+    }
+}
+
+/// An error unless the optional setting `what` is positive and finite.
+fn positive(what: &str, v: Option<f64>) -> Result<()> {
+    match v {
+        Some(w) if !(w.is_finite() && w > 0.0) => {
+            candle_core::bail!("{what} must be positive, got {w}")
+        }
+        _ => Ok(()),
     }
 }
 

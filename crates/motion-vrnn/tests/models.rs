@@ -214,6 +214,90 @@ fn fed_back_frames_reach_the_recurrence_only() {
     }
 }
 
+/// Rounds of feeding back: the first fed frame of a window is predicted
+/// from real frames in every round, so with one fed frame a second round
+/// changes nothing; in a run of fed frames the later ones are predicted
+/// from the first round's predictions, so the losses change.
+#[test]
+fn a_second_round_rolls_out_runs_of_fed_frames() {
+    let one = model("fed", 5);
+    let mut c = one.model.config().clone();
+    assert_eq!(c.parts.rounds(), 1);
+    c.parts.feed_rounds = Some(2);
+    let two = init_model(&c, 5, &Device::Cpu).unwrap();
+    // Weights three times their initial scale, so the recurrence carries
+    // what it reads (at the initial scale it forgets within a step or two).
+    for m in [&one, &two] {
+        for (_, v) in named_vars(&m.varmap) {
+            v.set(&(v.as_tensor() * 3.0).unwrap()).unwrap();
+        }
+    }
+    let (x, eps) = batch(3, 8, 21);
+    let losses = |m: &Trained, mask: &[f32]| {
+        let f = Tensor::from_vec(mask.repeat(3), (3, 8), &Device::Cpu).unwrap();
+        let l = m.model.losses(&x, &eps, Some(&f)).unwrap();
+        [&l.recon, &l.kl].map(|v| v.to_scalar::<f32>().unwrap())
+    };
+    let single = [0., 0., 0., 1., 0., 0., 0., 0.];
+    let (a, b) = (losses(&one, &single), losses(&two, &single));
+    for (a, b) in a.iter().zip(&b) {
+        assert!(((a - b) / a).abs() < 1e-6, "{a} vs {b}");
+    }
+    // A run: the second round moves the losses by a fair share of what
+    // feeding back moves them at all.
+    let run = [0., 1., 1., 1., 1., 1., 1., 0.];
+    let (real, a, b) = (
+        losses(&one, &[0.; 8]),
+        losses(&one, &run),
+        losses(&two, &run),
+    );
+    for k in 0..2 {
+        let (fed, second) = ((a[k] - real[k]).abs(), (b[k] - a[k]).abs());
+        assert!(
+            second > 0.1 * fed && fed > 1e-4 * real[k],
+            "{real:?} {a:?} {b:?}"
+        );
+    }
+    c.parts.feed_rounds = Some(0);
+    assert!(init_model(&c, 5, &Device::Cpu).is_err());
+}
+
+/// The temperature scales the prior's noise after the real start frames and
+/// nothing else: sampling at temperature 0.5 is sampling at 1 with those
+/// steps' noise halved; it leaves the losses alone; it must be positive.
+#[test]
+fn the_temperature_scales_the_prior_noise_only() {
+    for name in ["paper", "motion"] {
+        let mut m = model(name, 6);
+        let (x, _) = batch(3, 9, 17);
+        let (start, k) = (x.narrow(1, 0, 3).unwrap(), 3);
+        let e = noise(4, 0, 9, 3, 8, &Device::Cpu).unwrap();
+        let halved = Tensor::cat(
+            &[
+                e.narrow(0, 0, k).unwrap(),
+                (e.narrow(0, k, 9 - k).unwrap() * 0.5).unwrap(),
+            ],
+            0,
+        )
+        .unwrap();
+        let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let (x8, eps) = batch(2, 6, 3);
+        let loss = |m: &Trained| flat(m.model.losses(&x8, &eps, None).unwrap().recon);
+        m.model.set_temperature(None).unwrap();
+        let want = flat(m.model.sample(&halved, Some(&start)).unwrap());
+        let plain = flat(m.model.sample(&e, Some(&start)).unwrap());
+        let l1 = loss(&m);
+        m.model.set_temperature(Some(0.5)).unwrap();
+        let got = flat(m.model.sample(&e, Some(&start)).unwrap());
+        assert!(rel(&got, &want) < 1e-6, "{name}");
+        assert!(rel(&got, &plain) > 1e-3, "{name}");
+        assert_eq!(loss(&m), l1, "{name}");
+        for bad in [0.0, -1.0, f64::NAN] {
+            assert!(m.model.set_temperature(Some(bad)).is_err(), "{name} {bad}");
+        }
+    }
+}
+
 /// The mask has the share asked for, and is a pure function of seed and step.
 #[test]
 fn feed_masks_have_their_share() {
