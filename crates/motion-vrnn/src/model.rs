@@ -635,9 +635,9 @@ impl Vrnn {
         let t = x.dim(1)?;
         let prior = stacked(&self.prior[0], &self.prior[1])?;
         let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
-        let mut fed: Option<Tensor> = None;
-        for _ in 0..self.config.parts.rounds() {
-            let s = self.scan(feat, fed.as_ref(), eps)?;
+        // One round: the recurrence reads `fed` (the real frames when None).
+        let round = |fed: Option<&Tensor>| -> Result<Tensor> {
+            let s = self.scan(feat, fed, eps)?;
             let z = draw(&prior.forward(&s.h, Act::None)?, eps, self.config.latent)?;
             let z = if t > 1 {
                 Tensor::cat(&[&eps.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
@@ -645,9 +645,13 @@ impl Vrnn {
                 eps.clone()
             };
             let own = self.decode(&z, &s.h, lengths)?.0.detach();
-            fed = Some((x + ((own - x)? * &m)?)?);
+            x + ((own - x)? * &m)?
+        };
+        let mut fed = round(None)?;
+        for _ in 1..self.config.parts.rounds() {
+            fed = round(Some(&fed))?;
         }
-        fed.ok_or_else(|| candle_core::Error::Msg("feed_rounds must be at least 1".into()))
+        Ok(fed)
     }
 
     /// The mean skeleton for `b` sequences (sampling): `[b, 18]`.
@@ -757,7 +761,10 @@ impl MotionModel for Vrnn {
                     (Some((x, feat)), draw(&q, &e, c.latent)?)
                 }
                 None => {
-                    let e = (e * c.parts.temperature.unwrap_or(1.0))?;
+                    let e = match c.parts.temperature {
+                        Some(tau) => (e * tau)?,
+                        None => e,
+                    };
                     match step {
                         0 => (None, e),
                         _ => (None, draw(&prior.forward(&h, Act::None)?, &e, c.latent)?),
