@@ -1,10 +1,11 @@
 //! A corpus of broken files, made from real CMU files and by hand: each gives
 //! its specific error naming the file, none panics, and good files beside them
-//! still go through.
+//! still go through. A file whose only damage is that it ends inside its
+//! motion keeps its complete frames and says where it was cut.
 
 use integration_tests::{asfamc_zip, bvh_zip, read_entry};
 use mocap_ingest::source::Source;
-use mocap_ingest::{process_take, ErrorKind, IngestError, Options};
+use mocap_ingest::{process_take, Clip, ErrorKind, IngestError, Options};
 use std::path::Path;
 
 fn good_bvh() -> String {
@@ -37,13 +38,18 @@ fn set_token(line: &str, k: usize, with: &str) -> String {
     t.join(" ")
 }
 
+/// Byte offset of the start of the `n`-th line (1-based) of `text`.
+fn line_start(text: &str, n: usize) -> usize {
+    text.split_inclusive('\n').take(n - 1).map(str::len).sum()
+}
+
 fn line_of(text: &str, needle: &str) -> usize {
     text.lines().position(|l| l.contains(needle)).unwrap() + 1
 }
 
 /// Write `files` into a fresh directory, process every take, and return the
 /// result per take id.
-fn run(files: &[(&str, Vec<u8>)]) -> Vec<(String, Result<usize, IngestError>)> {
+fn run(files: &[(&str, Vec<u8>)]) -> Vec<(String, Result<Clip, IngestError>)> {
     let dir = tempfile::tempdir().unwrap();
     for (name, bytes) in files {
         let path = dir.path().join(name);
@@ -58,14 +64,16 @@ fn run(files: &[(&str, Vec<u8>)]) -> Vec<(String, Result<usize, IngestError>)> {
         .unwrap()
         .iter()
         .map(|t| {
-            let r = process_take(&source, &mut reader, t, &opts);
-            (t.take_id.clone(), r.map(|c| c.features.len()))
+            (
+                t.take_id.clone(),
+                process_take(&source, &mut reader, t, &opts),
+            )
         })
         .collect()
 }
 
 fn expect_err<'a>(
-    results: &'a [(String, Result<usize, IngestError>)],
+    results: &'a [(String, Result<Clip, IngestError>)],
     take: &str,
 ) -> &'a IngestError {
     let (_, r) = results.iter().find(|(t, _)| t == take).unwrap();
@@ -77,6 +85,30 @@ fn expect_err<'a>(
         "error does not name the file: {msg}"
     );
     e
+}
+
+/// The take read from a file cut short: its complete frames, and the cut.
+fn expect_cut<'a>(
+    results: &'a [(String, Result<Clip, IngestError>)],
+    take: &str,
+) -> (&'a Clip, mocap_ingest::Truncation) {
+    let (_, r) = results.iter().find(|(t, _)| t == take).unwrap();
+    let clip = r.as_ref().unwrap_or_else(|e| panic!("{take}: {e}"));
+    let t = clip
+        .truncation
+        .unwrap_or_else(|| panic!("{take}: the cut is not recorded"));
+    eprintln!(
+        "{take}: kept {} of {} frames",
+        t.frames_kept(),
+        t.frames_expected()
+    );
+    // The complete frames are the take (a BVH T-pose frame not counted),
+    // every 4th at 30 fps; strict readers get the error of format 2.
+    assert_eq!(clip.native_frames, t.frames_kept());
+    assert_eq!(clip.native_frames, t.found - t.leading);
+    assert_eq!(clip.features.len(), clip.native_frames.div_ceil(4));
+    assert!(matches!(t.to_error(), ErrorKind::Truncated { .. }));
+    (clip, t)
 }
 
 #[test]
@@ -95,6 +127,10 @@ fn broken_bvh_files_each_give_their_error() {
                 .collect(),
         ),
         ("04_truncated.bvh", good.as_bytes()[..cut].to_vec()),
+        (
+            "04b_no_frame.bvh",
+            good.as_bytes()[..line_start(&good, motion_line - 8) + 5].to_vec(),
+        ),
         (
             "05_channels.bvh",
             with_line(&good, motion_line, |l| {
@@ -154,8 +190,8 @@ fn broken_bvh_files_each_give_their_error() {
     let results = run(&files);
     assert_eq!(results.len(), files.len());
     assert_eq!(
-        results[0].1.as_ref().unwrap(),
-        &86,
+        results[0].1.as_ref().unwrap().features.len(),
+        86,
         "the good file still goes through"
     );
 
@@ -167,14 +203,19 @@ fn broken_bvh_files_each_give_their_error() {
         expect_err(&results, "03_garbage").kind,
         ErrorKind::NotText { .. }
     ));
-    match &expect_err(&results, "04_truncated").kind {
+    let (_, t) = expect_cut(&results, "04_truncated");
+    assert_eq!(t.expected, 344);
+    assert!(
+        t.found > 1 && t.found < 344 && t.line > motion_line - 10,
+        "{t:?}"
+    );
+    // Cut inside the first frame line (after the T-pose): no motion frame.
+    match &expect_err(&results, "04b_no_frame").kind {
         ErrorKind::Truncated {
             expected: 344,
-            found,
+            found: 1,
             line,
-        } => {
-            assert!(*found < 344 && *line > motion_line - 10)
-        }
+        } => assert_eq!(*line, motion_line - 8),
         k => panic!("{k}"),
     }
     match &expect_err(&results, "05_channels").kind {
@@ -203,13 +244,9 @@ fn broken_bvh_files_each_give_their_error() {
         ErrorKind::UnknownSkeleton { missing, .. } => assert_eq!(missing, &["LeftForeArm"]),
         k => panic!("{k}"),
     }
-    assert!(matches!(
-        expect_err(&results, "09_frames").kind,
-        ErrorKind::Truncated {
-            expected: 99999999999,
-            ..
-        }
-    ));
+    // `Frames:` promises more lines than the file holds: the same rule.
+    let (_, t) = expect_cut(&results, "09_frames");
+    assert_eq!((t.expected, t.found), (99999999999, 344));
     expect_err(&results, "10_braces");
     assert!(matches!(
         expect_err(&results, "11_nomotion").kind,
@@ -252,6 +289,12 @@ fn broken_asf_amc_files_each_give_their_error() {
         ("02/02.asf", asf.clone().into_bytes()),
         ("02/02_01.amc", amc.clone().into_bytes()),
         ("02/02_02.amc", amc.as_bytes()[..amc.len() / 2].to_vec()),
+        // Damaged mid-file and cut at the end: the damage is the error.
+        (
+            "02/02_08.amc",
+            with_line(&amc, root2, |l| l.replace("10.4117", "ten")).into_bytes()[..amc.len() / 2]
+                .to_vec(),
+        ),
         (
             "02/02_03.amc",
             with_line(&amc, root2, |l| l.rsplit_once(' ').unwrap().0.to_string()).into_bytes(),
@@ -280,16 +323,22 @@ fn broken_asf_amc_files_each_give_their_error() {
         ("29/29_01.amc", amc.clone().into_bytes()),
     ];
     let results = run(&files);
-    assert_eq!(results.len(), 10);
+    assert_eq!(results.len(), 11);
     assert_eq!(
-        results[0].1.as_ref().unwrap(),
-        &86,
+        results[0].1.as_ref().unwrap().features.len(),
+        86,
         "the good file still goes through"
     );
-    assert!(matches!(
-        expect_err(&results, "02_02").kind,
-        ErrorKind::Truncated { .. }
-    ));
+    // Cut in the middle: the frames before the one it ends in are kept.
+    let (_, t) = expect_cut(&results, "02_02");
+    assert_eq!(t.found + 1, t.expected);
+    assert!(t.found > 100 && t.found < 300, "{t:?}");
+    match &expect_err(&results, "02_08").kind {
+        ErrorKind::NonNumeric { line, token } => {
+            assert_eq!((*line, token.as_str()), (root2, "ten"))
+        }
+        k => panic!("{k}"),
+    }
     match &expect_err(&results, "02_03").kind {
         ErrorKind::ChannelCount {
             line,

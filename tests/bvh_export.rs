@@ -145,6 +145,7 @@ fn stretch(pose: &Pose, f: impl Fn(usize) -> f64) -> Pose {
 
 #[test]
 fn stretching_bones_errs_by_exactly_the_bone_length_variation() {
+    integration_tests::require_samples!();
     // Generated motion's bones change length; the export keeps each bone's
     // direction, so the error is what the mean lengths predict.
     let real = real_windows().into_iter().step_by(25).collect::<Vec<_>>();

@@ -74,13 +74,33 @@ fn broken_files_are_reported_and_do_not_change_the_good_output() {
     std::fs::write(mixed.join("02/02_93.amc"), b"1\nroot 0 0 0 0 0 0\n").unwrap();
     std::fs::write(mixed.join("02/notes.txt"), b"not motion").unwrap();
 
+    // Strict, the file cut short is skipped too (as in format 2).
+    let strict = DatasetOptions {
+        strict: true,
+        ..short_takes_options()
+    };
     let a = build_with(&[&good], &tmp.path().join("a"), 2, &short_takes_options());
-    let b = build_with(&[&mixed], &tmp.path().join("b"), 2, &short_takes_options());
+    let b = build_with(&[&mixed], &tmp.path().join("b"), 2, &strict);
     assert_eq!(a.takes, 4);
     assert_eq!(b.takes, 4);
+    assert!(b.warnings.is_empty());
     let codes: Vec<&str> = b.skipped.iter().map(|s| s.code.as_str()).collect();
     assert_eq!(codes, ["truncated", "empty", "not_text", "missing_asf"]);
     assert!(b.skipped[0].message.contains("02_90.bvh"));
+    // By default it is kept with its complete frames, and a warning.
+    let c = build_with(&[&mixed], &tmp.path().join("c"), 2, &short_takes_options());
+    assert_eq!(c.takes, 5);
+    let codes: Vec<&str> = c.skipped.iter().map(|s| s.code.as_str()).collect();
+    assert_eq!(codes, ["empty", "not_text", "missing_asf"]);
+    assert_eq!(c.warnings.len(), 1);
+    let w = &c.warnings[0];
+    assert_eq!((w.take.as_str(), w.kind.as_str()), ("02_90", "truncated"));
+    assert!(w.file.ends_with("02/02_90.bvh"), "{w:?}");
+    assert!(
+        w.frames_kept > 0 && w.frames_kept < w.frames_expected,
+        "{w:?}"
+    );
+    assert_eq!(c.native_frames, a.native_frames + w.frames_kept);
     let (ca, cb) = (
         dataset_contents(&tmp.path().join("a")),
         dataset_contents(&tmp.path().join("b")),

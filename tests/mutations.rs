@@ -1,7 +1,8 @@
 //! Seeded random mutations of real BVH (Motionbuilder and Daz-friendly) and
 //! ASF/AMC files — truncations, dropped or duplicated lines, junk tokens,
 //! byte flips — built into one dataset beside good takes: every file is
-//! accounted for, the good takes arrive, and nothing panics (a panic hook
+//! accounted for (a file cut inside its motion as a take with a warning),
+//! the good takes arrive, and nothing panics (a panic hook
 //! counts panics anywhere in the process, caught or not).
 //!
 //! This binary holds a single test, so the hook sees only its own panics.
@@ -228,9 +229,21 @@ fn hundreds_of_mutants_of_real_files_never_panic() {
         );
     }
     eprintln!(
-        "{mutants} mutants + 3 good takes in {seconds:.2} s: {} takes written, skipped by code {by_code:?}",
-        s.takes
+        "{mutants} mutants + 3 good takes in {seconds:.2} s: {} takes written ({} cut short, \
+         kept with a warning), skipped by code {by_code:?}",
+        s.takes,
+        s.warnings.len()
     );
+    // Mutants cut inside their motion are takes with a warning, in take order.
+    assert!(s.warnings.len() < s.takes);
+    for w in &s.warnings {
+        assert_eq!(w.kind, "truncated");
+        assert!(
+            w.frames_kept > 0 && w.frames_kept < w.frames_expected,
+            "{w:?}"
+        );
+    }
+    assert!(s.warnings.windows(2).all(|p| p[0].take < p[1].take));
     assert!(!by_code.contains_key("panic"));
     assert_eq!(panics.load(Ordering::SeqCst), 0, "panics happened");
     // The good takes are in.

@@ -4,12 +4,11 @@ use crate::{fetch, file_name, shared_samples, workspace_root};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use mocap_ingest::bench::BenchRun;
 use mocap_ingest::dataset::{
-    build_dataset, parse_exclude_list, BuildSummary, DatasetOptions, Encoding, Progress, SplitBy,
-    SPLITS,
+    build_dataset, parse_exclude_list, DatasetOptions, Encoding, Progress, SplitBy,
 };
-use mocap_ingest::source::{FileRef, Source};
-use std::collections::BTreeMap;
+use mocap_ingest::source::Source;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -69,6 +68,10 @@ pub struct DatasetArgs {
     /// flagged.txt works as is). Recorded in the manifest.
     #[arg(long)]
     exclude: Option<PathBuf>,
+    /// Skip files that end inside their motion (reason `truncated`) instead
+    /// of keeping their complete frames with a warning. Recorded in the manifest.
+    #[arg(long)]
+    strict: bool,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -127,6 +130,7 @@ pub fn run(a: DatasetArgs) -> Result<()> {
             SplitByArg::Take => SplitBy::Take,
             SplitByArg::Subject => SplitBy::Subject,
         },
+        strict: a.strict,
         ..Default::default()
     };
     opts.ingest.target_fps = a.fps;
@@ -198,110 +202,19 @@ pub fn run(a: DatasetArgs) -> Result<()> {
         .with_context(|| format!("building the dataset in {}", out.display()))?;
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
-    let rss = peak_rss_kib();
+    let rss = mocap_ingest::bench::peak_rss_kib();
     if a.bench_line {
-        println!(
-            "BENCH seconds={seconds} native_frames={} input_bytes={} peak_rss_kib={}",
-            summary.native_frames,
-            summary.input_bytes,
-            rss.unwrap_or(0)
-        );
+        let run = BenchRun {
+            seconds,
+            native_frames: summary.native_frames as u64,
+            input_bytes: summary.input_bytes,
+            rss_kib: rss.unwrap_or(0),
+        };
+        println!("{}", run.line());
     } else if !a.quiet {
-        print_summary(&summary, &out, seconds, threads, rss);
+        print!("{}", summary.report(&out, seconds, threads, rss));
     }
     Ok(())
-}
-
-fn print_summary(s: &BuildSummary, out: &Path, seconds: f64, threads: usize, rss: Option<u64>) {
-    println!("dataset written to {}", out.display());
-    println!("  files found        {:>10}", s.files);
-    println!("  takes written      {:>10}", s.takes);
-    for ((format, skeleton), n) in &s.takes_by_skeleton {
-        println!("    {format:<4} {skeleton:<33} {n:>6}");
-    }
-    println!("  files skipped      {:>10}", s.skipped.len());
-    let mut by_code: BTreeMap<&str, usize> = BTreeMap::new();
-    for k in &s.skipped {
-        *by_code.entry(k.code.as_str()).or_default() += 1;
-    }
-    for (code, n) in &by_code {
-        println!("    {code:<16} {n:>10}");
-    }
-    let d = &s.duplicates;
-    if d.takes > 0 {
-        let kept: Vec<String> = d
-            .kept_by_format
-            .iter()
-            .map(|(f, n)| format!("{n} {f}"))
-            .collect();
-        println!(
-            "  takes in several copies {:>5}   kept: {}; {} after the preferred copy failed; \
-             {} retargeted (Daz) copies read but yielded to the subject's skeleton; {} copies not read",
-            d.takes,
-            if kept.is_empty() { "none".into() } else { kept.join(", ") },
-            d.fell_back,
-            d.superseded,
-            d.unread
-        );
-    }
-    if s.excluded > 0 || !s.exclude_unmatched.is_empty() {
-        println!("  excluded files     {:>10}", s.excluded);
-    }
-    if !s.exclude_unmatched.is_empty() {
-        println!(
-            "  exclude-list ids matching no take: {}",
-            s.exclude_unmatched.join(", ")
-        );
-    }
-    println!(
-        "  input frames       {:>10}   (native rate)",
-        s.native_frames
-    );
-    println!("  frames written     {:>10}   (30 fps)", s.frames);
-    println!("  takes < 1 window   {:>10}", s.short_takes);
-    println!("  {:<8} {:>8} {:>10}", "split", "takes", "windows");
-    for (i, split) in SPLITS.iter().enumerate() {
-        println!(
-            "  {:<8} {:>8} {:>10}",
-            split, s.takes_per_split[i], s.windows_per_split[i]
-        );
-    }
-    let rss = rss.map_or("?".to_string(), |k| format!("{:.0} MiB", k as f64 / 1024.0));
-    println!(
-        "  {seconds:.2} s on {threads} threads, {:.0} input frames/s, peak RSS {rss}",
-        s.native_frames as f64 / seconds
-    );
-    // Duplicates that were simply not read and excluded files are routine;
-    // list the files that failed.
-    let failed: Vec<_> = s
-        .skipped
-        .iter()
-        .filter(|k| !matches!(k.code.as_str(), "duplicate_take" | "excluded"))
-        .collect();
-    if !failed.is_empty() {
-        println!("files that failed (all skipped files are in skipped.json):");
-        for k in failed.iter().take(20) {
-            println!("  {}", k.message);
-        }
-        if failed.len() > 20 {
-            println!("  … and {} more", failed.len() - 20);
-        }
-    }
-}
-
-/// Peak resident set size of this process (Linux), in KiB.
-fn peak_rss_kib() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    line.split_whitespace().nth(1)?.parse().ok()
-}
-
-/// One `dataset --bench-line` run in a fresh process.
-struct BenchRun {
-    seconds: f64,
-    native_frames: u64,
-    input_bytes: u64,
-    rss_kib: u64,
 }
 
 /// Run `dataset` on `src` into `out`, `repeat` times; the fastest run.
@@ -327,23 +240,7 @@ fn bench_runs(
         if !o.status.success() {
             bail!("dataset failed: {}", String::from_utf8_lossy(&o.stderr));
         }
-        let text = String::from_utf8_lossy(&o.stdout);
-        let line = text
-            .lines()
-            .find(|l| l.starts_with("BENCH "))
-            .context("no BENCH line")?;
-        let field = |k: &str| -> f64 {
-            line.split_whitespace()
-                .find_map(|f| f.strip_prefix(k)?.strip_prefix('='))
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(0.0)
-        };
-        let r = BenchRun {
-            seconds: field("seconds"),
-            native_frames: field("native_frames") as u64,
-            input_bytes: field("input_bytes") as u64,
-            rss_kib: field("peak_rss_kib") as u64,
-        };
+        let r = BenchRun::parse(&String::from_utf8_lossy(&o.stdout)).context("no BENCH line")?;
         if best.as_ref().is_none_or(|b| r.seconds < b.seconds) {
             best = Some(r);
         }
@@ -353,61 +250,6 @@ fn bench_runs(
 
 /// Copies of the takes per subject for the scaled benchmark.
 const SCALE: usize = 10;
-
-/// `SCALE` copies of an ASF/AMC collection in `dir`, each subject under a new
-/// three-digit number (145 and up, past CMU's last subject), with a
-/// frame-rate table giving each copy its original's rate. AMC files are
-/// written once and hard-linked for the other copies; each copy's ASF ends
-/// with its own `#` comment, so no two copies are the same bytes (the
-/// dataset keeps one take per content). Returns the folder and the
-/// frame-rate CSV.
-fn scaled_collection(src: &Path, dir: &Path) -> Result<(PathBuf, PathBuf)> {
-    let source = Source::open(src)?;
-    let mut reader = source.reader()?;
-    let takes = source.takes()?;
-    let subjects: std::collections::BTreeSet<&str> =
-        takes.iter().map(|t| t.subject.as_str()).collect();
-    let index: BTreeMap<&str, usize> = subjects.iter().enumerate().map(|(i, s)| (*s, i)).collect();
-    if 145 + SCALE * subjects.len() > 999 {
-        bail!("too many subjects to scale {}", src.display());
-    }
-    let root = dir.join(format!("asfamc-x{SCALE}"));
-    let table = dir.join(format!("asfamc-x{SCALE}-fps.csv"));
-    let builtin = mocap_ingest::fps::FrameRateTable::default();
-    let mut csv = String::from("take,fps\n");
-    for t in &takes {
-        let (Some(asf), Some((_, trial))) = (&t.asf, t.take_id.split_once('_')) else {
-            bail!("{}: not a CMU ASF/AMC take", t.motion.name);
-        };
-        let rate = builtin.resolve(&t.take_id, None);
-        let mut first_amc: Option<PathBuf> = None;
-        for k in 0..SCALE {
-            let n = 145 + k * subjects.len() + index[t.subject.as_str()];
-            let sub = root.join(n.to_string());
-            std::fs::create_dir_all(&sub)?;
-            csv.push_str(&format!("{n}_{trial},{rate}\n"));
-            let amc = sub.join(format!("{n}_{trial}.amc"));
-            match &first_amc {
-                Some(orig) if std::fs::hard_link(orig, &amc).is_ok() => {}
-                _ => {
-                    let bytes = reader.read_file(&FileRef::Entry(t.motion.clone()))?;
-                    std::fs::write(&amc, bytes)
-                        .with_context(|| format!("writing {}", amc.display()))?;
-                    first_amc.get_or_insert(amc);
-                }
-            }
-            let asf_path = sub.join(format!("{n}.asf"));
-            if !asf_path.exists() {
-                let mut bytes = reader.read_file(asf)?;
-                bytes.extend_from_slice(format!("\n# bench copy {k} as subject {n}\n").as_bytes());
-                std::fs::write(&asf_path, bytes)
-                    .with_context(|| format!("writing {}", asf_path.display()))?;
-            }
-        }
-    }
-    std::fs::write(&table, csv)?;
-    Ok((root, table))
-}
 
 fn print_bench_row(name: &str, threads: usize, r: &BenchRun) {
     println!(
@@ -453,7 +295,7 @@ pub fn bench(sources: Vec<PathBuf>, repeat: usize, encodings: bool) -> Result<()
         let (Some(asfamc), true) = (asfamc, default || encodings) else {
             return Ok(());
         };
-        let (big, fps) = scaled_collection(asfamc, &tmp)?;
+        let (big, fps) = mocap_ingest::bench::scaled_collection(asfamc, &tmp, SCALE)?;
         let fps = fps.display().to_string();
         let r = bench_runs(
             &exe,

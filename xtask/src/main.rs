@@ -12,11 +12,9 @@ mod train;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use mocap_ingest::source::{FileRef, Source, TakeInput};
+use mocap_ingest::source::Source;
 use mocap_ingest::{process_take, Options};
-use rayon::prelude::*;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 #[derive(Parser)]
 #[command(name = "cargo xtask", about = "Motion-capture → VRNN toolchain tasks")]
@@ -190,55 +188,6 @@ pub(crate) fn shared_samples() -> Result<Vec<PathBuf>> {
     Ok(files.to_vec())
 }
 
-struct Throughput {
-    files: usize,
-    bytes: u64,
-    native_frames: usize,
-    failed: usize,
-    seconds: f64,
-}
-
-fn run_once(source: &Source, takes: &[TakeInput], threads: usize) -> Result<Throughput> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("building the thread pool")?;
-    let opts = Options::default();
-    let start = Instant::now();
-    let results: Vec<Option<usize>> = pool.install(|| {
-        takes
-            .par_iter()
-            .map_init(
-                || source.reader().ok(),
-                |reader, take| {
-                    let reader = reader.as_mut()?;
-                    process_take(source, reader, take, &opts)
-                        .ok()
-                        .map(|c| c.native_frames)
-                },
-            )
-            .collect()
-    });
-    let seconds = start.elapsed().as_secs_f64();
-    let bytes = takes
-        .iter()
-        .map(|t| {
-            t.motion.size
-                + match &t.asf {
-                    Some(FileRef::Entry(a)) => a.size,
-                    _ => 0,
-                }
-        })
-        .sum();
-    Ok(Throughput {
-        files: takes.len(),
-        bytes,
-        native_frames: results.iter().flatten().sum(),
-        failed: results.iter().filter(|r| r.is_none()).count(),
-        seconds,
-    })
-}
-
 fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
     let sources = if sources.is_empty() {
         shared_samples()?
@@ -262,14 +211,7 @@ fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
             thread_counts.push(cores);
         }
         for &threads in &thread_counts {
-            let mut best: Option<Throughput> = None;
-            for _ in 0..repeat.max(1) {
-                let t = run_once(&source, &takes, threads)?;
-                if best.as_ref().is_none_or(|b| t.seconds < b.seconds) {
-                    best = Some(t);
-                }
-            }
-            let Some(t) = best else { continue };
+            let t = mocap_ingest::bench::best_throughput(&source, &takes, threads, repeat)?;
             let name = file_name(path);
             println!(
                 "{:<28} {:>7} {:>6} {:>9.1} {:>10} {:>8.3} {:>9.1} {:>13.0}",
@@ -327,19 +269,15 @@ fn inspect(file: &Path, full_asf_skeleton: bool, asf: Option<PathBuf>) -> Result
         clip.features.len(),
         opts.target_fps
     );
-    let names = mocap_ingest::features::feature_names();
     println!(
         "{:<16} {:>10} {:>10} {:>10}",
         "feature", "min", "mean", "max"
     );
-    for (i, n) in names.iter().enumerate() {
-        let col = clip.features.iter().map(|f| f[i]);
-        let (lo, hi) = col
-            .clone()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-                (a.min(v), b.max(v))
-            });
-        let mean = col.sum::<f64>() / clip.features.len() as f64;
+    let names = mocap_ingest::features::feature_names();
+    for (n, [lo, mean, hi]) in names
+        .iter()
+        .zip(mocap_ingest::features::ranges(&clip.features))
+    {
         println!("{n:<16} {lo:>10.4} {mean:>10.4} {hi:>10.4}");
     }
     Ok(())

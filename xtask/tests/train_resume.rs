@@ -17,6 +17,10 @@ fn dataset(tmp: &Path) -> PathBuf {
 }
 
 fn train_cmd(ds: &Path, out: &Path) -> Command {
+    train_for(EPOCHS, ds, out)
+}
+
+fn train_for(epochs: &str, ds: &Path, out: &Path) -> Command {
     let mut c = xtask();
     c.args([
         "train",
@@ -24,7 +28,7 @@ fn train_cmd(ds: &Path, out: &Path) -> Command {
         "--batch",
         "8",
         "--epochs",
-        EPOCHS,
+        epochs,
         "--early-stopping",
         "0",
         "--seed",
@@ -95,4 +99,33 @@ fn sigkill_and_resume_reaches_the_uninterrupted_result() {
         );
     }
     assert!(b.join("loss.png").is_file());
+}
+
+#[test]
+fn resume_without_a_checkpoint_starts_from_scratch_and_says_so() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = dataset(tmp.path());
+    // A run killed in its first epoch: metrics started, no `last/` yet.
+    let run = tmp.path().join("killed");
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(run.join("metrics.jsonl"), "").unwrap();
+    let out = train_for("2", &ds, &run).arg("--resume").output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("no checkpoint to resume from yet")
+            && stderr.contains("starting from scratch"),
+        "{stderr}"
+    );
+    assert_eq!(epoch_of(&run), 2);
+    assert_eq!(metrics(&run).len(), 2);
+
+    // A directory that does not exist is a mistake, not a fresh start.
+    let missing = tmp.path().join("no-such-run");
+    let out = train_cmd(&ds, &missing).arg("--resume").output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("nothing to resume"), "{stderr}");
+    assert!(!missing.exists());
 }

@@ -2,8 +2,11 @@
 //! `docs/audit.md`). Every check yields a [`Check`]; the report fails if any
 //! check fails. Data-quality findings are listed per take.
 
+pub mod markdown;
+
 use mocap_ingest::dataset::{
-    build_dataset, sha256_hex, DatasetOptions, Encoding, NoProgress, SplitBy, Stats, SPLITS,
+    build_dataset, manifest_warnings, sha256_hex, DatasetOptions, Encoding, NoProgress, SplitBy,
+    Stats, SPLITS,
 };
 use mocap_ingest::features::{feature_names, ANG_VEL_Y, VEL_X, VEL_Z};
 use mocap_ingest::skeleton::{JOINT_NAMES, JOINT_PARENTS, NUM_JOINTS};
@@ -410,6 +413,34 @@ fn checks_on_tables(dir: &Path, manifest: &serde_json::Value, r: &mut Report) ->
             mism.push(format!("{s} windows: manifest {want} vs {got}"));
         }
     }
+    // Takes kept from files cut short: each in takes.parquet with the
+    // frames the warning says were kept (none in a format 2 manifest).
+    match manifest_warnings(manifest) {
+        Err(e) => mism.push(e),
+        Ok(warnings) if !warnings.is_empty() => {
+            let t = takes
+                .clone()
+                .select([col("take"), col("native_frames")])
+                .collect()?;
+            let ids = t.column("take")?.str()?.clone();
+            let native = t.column("native_frames")?.u32()?.clone();
+            let kept: HashMap<&str, u32> = (0..t.height())
+                .filter_map(|i| Some((ids.get(i)?, native.get(i)?)))
+                .collect();
+            for w in &warnings {
+                let got = kept.get(w.take.as_str()).map(|&n| n as usize);
+                if got != Some(w.frames_kept) {
+                    mism.push(format!(
+                        "warning on take {}: {} frames kept, takes.parquet {}",
+                        w.take,
+                        w.frames_kept,
+                        got.map_or("has no such take".into(), |n| format!("{n} native frames"))
+                    ));
+                }
+            }
+        }
+        Ok(_) => {}
+    }
     r.check(
         "integrity",
         "counts match the manifest",
@@ -765,6 +796,9 @@ fn reproduce(dir: &Path, rebuild: &Rebuild, manifest: &serde_json::Value, r: &mu
     if let Some(e) = o["encoding"].as_str().and_then(Encoding::from_name) {
         opts.encoding = e;
     }
+    // A manifest without `strict` (format 2) comes from a build that always
+    // skipped files cut short.
+    opts.strict = o["strict"].as_bool().unwrap_or(true);
     if let Some(ids) = o["exclude"].as_array() {
         opts.exclude = ids
             .iter()

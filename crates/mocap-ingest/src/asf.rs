@@ -13,7 +13,7 @@
 //! - Lengths stay in raw ASF units (no `:units length` scale), as in the BVH
 //!   conversions.
 
-use crate::error::{check_text, snippet, ErrorKind};
+use crate::error::{check_text, ends_at_end, is_number_prefix, snippet, ErrorKind, Truncation};
 use crate::math::{add, scale, Axis, Mat3, Vec3};
 use crate::skeleton::{Pose, ASF_BONES, NUM_JOINTS};
 use crate::text::{parse_decimal, tokens};
@@ -395,40 +395,48 @@ pub struct AmcMotion {
     /// `frames × values_per_frame` values, angles in radians.
     values: Vec<f64>,
     num_frames: usize,
+    truncation: Option<Truncation>,
 }
 
 impl AmcMotion {
     /// Parse an AMC file against its subject's skeleton.
+    ///
+    /// A file that ends inside its last frame (lines of the frame missing,
+    /// its last line short, or a bone name, value or frame number cut by
+    /// the end of the file) reads with the complete frames before it
+    /// ([`AmcMotion::truncation`]); without any complete frame it is
+    /// [`ErrorKind::Truncated`]. Damage anywhere else is an error.
     pub fn parse(bytes: &[u8], skeleton: AsfSkeleton) -> Result<AmcMotion, ErrorKind> {
         check_text(bytes)?;
         let per_frame = skeleton.values_per_frame;
         let mut degrees = skeleton.degrees;
         let mut values: Vec<f64> = Vec::new();
-        let mut frame: Option<(usize, usize)> = None; // (frame number, first line)
+        let mut frame: Option<usize> = None; // the current frame's number
         let mut seen = vec![false; skeleton.bones.len() + 1];
         let mut num_frames = 0usize;
         let mut last_line = 0;
+        // Set when the file ends inside a frame: (that frame's number, line).
+        let mut cut: Option<(usize, usize)> = None;
 
-        let finish = |seen: &[bool], frame: Option<(usize, usize)>, at: usize, truncated: bool| {
-            let Some((num, _)) = frame else {
-                return Ok(());
-            };
-            let root_ok = seen[0] || skeleton.root_order.is_empty();
-            let missing = skeleton
+        let missing = |seen: &[bool]| -> Option<Option<String>> {
+            if !(seen[0] || skeleton.root_order.is_empty()) {
+                return Some(None);
+            }
+            skeleton
                 .bones
                 .iter()
                 .enumerate()
                 .find(|(i, b)| !b.dofs.is_empty() && !seen[i + 1])
-                .map(|(_, b)| b.name.clone());
-            match (root_ok, missing) {
-                (true, None) => Ok(()),
-                _ if truncated => Err(ErrorKind::Truncated {
-                    expected: num,
-                    found: num - 1,
-                    line: at,
-                }),
-                (false, _) => Err(amc_err(at, format!("frame {num} has no root line"))),
-                (_, Some(b)) => Err(amc_err(at, format!("frame {num} has no line for bone {b}"))),
+                .map(|(_, b)| Some(b.name.clone()))
+        };
+        let finish = |seen: &[bool], frame: Option<usize>, at: usize| {
+            let Some(num) = frame else {
+                return Ok(());
+            };
+            match missing(seen) {
+                None => Ok(()),
+                Some(None) => Err(amc_err(at, format!("frame {num} has no root line"))),
+                Some(Some(b)) => Err(amc_err(at, format!("frame {num} has no line for bone {b}"))),
             }
         };
 
@@ -437,7 +445,9 @@ impl AmcMotion {
         // frame, so each position remembers its bone.
         let mut slot_at: Vec<usize> = Vec::new();
         let mut line_in_frame = 0usize;
+        let mut next_line = 0usize; // byte offset of the next line
         for (n, raw) in (1..).zip(bytes.split(|&b| b == b'\n')) {
+            next_line += raw.len() + 1;
             let line = match raw.iter().position(|&b| b == b'#') {
                 Some(i) => &raw[..i],
                 None => raw,
@@ -447,6 +457,14 @@ impl AmcMotion {
                 continue;
             };
             last_line = n;
+            // Whether the file ends on this line (nothing but whitespace
+            // after it, no comment on it): damage here may be the cut.
+            let last = || {
+                line.len() == raw.len()
+                    && bytes
+                        .get(next_line..)
+                        .is_none_or(|rest| rest.iter().all(u8::is_ascii_whitespace))
+            };
             let name = || String::from_utf8_lossy(first);
             if let Some(kw) = first.strip_prefix(b":") {
                 if kw.eq_ignore_ascii_case(b"DEGREES") {
@@ -457,13 +475,21 @@ impl AmcMotion {
                 continue;
             }
             if first.iter().all(u8::is_ascii_digit) && toks.clone().next().is_none() {
-                finish(&seen, frame, n - 1, false)?;
-                let num: usize = std::str::from_utf8(first)
-                    .ok()
-                    .and_then(|t| t.parse().ok())
-                    .ok_or_else(|| amc_err(n, format!("bad frame number {:?}", name())))?;
+                finish(&seen, frame, n - 1)?;
                 let expected = num_frames + 1;
-                if num != expected {
+                let num: Option<usize> =
+                    std::str::from_utf8(first).ok().and_then(|t| t.parse().ok());
+                if num != Some(expected) {
+                    // The next frame's number, cut by the end of the file.
+                    if ends_at_end(bytes, first)
+                        && expected.to_string().as_bytes().starts_with(first)
+                    {
+                        cut = Some((expected, n));
+                        break;
+                    }
+                    let Some(num) = num else {
+                        return Err(amc_err(n, format!("bad frame number {:?}", name())));
+                    };
                     return Err(amc_err(
                         n,
                         format!("frame number {num} where {expected} was expected (frames are numbered from 1)"),
@@ -472,7 +498,7 @@ impl AmcMotion {
                 num_frames += 1;
                 values.resize(num_frames * per_frame, 0.0);
                 seen.iter_mut().for_each(|s| *s = false);
-                frame = Some((num, n));
+                frame = Some(expected);
                 line_in_frame = 0;
                 continue;
             }
@@ -499,7 +525,20 @@ impl AmcMotion {
                             .position(|b| b.name.as_bytes() == first)
                         {
                             Some(i) => i + 1,
-                            None => return Err(amc_err(n, format!("unknown bone {:?}", name()))),
+                            None => {
+                                // A bone name cut by the end of the file.
+                                let cut_name = ends_at_end(bytes, first)
+                                    && (b"root".starts_with(first)
+                                        || skeleton
+                                            .bones
+                                            .iter()
+                                            .any(|b| b.name.as_bytes().starts_with(first)));
+                                if cut_name {
+                                    cut = Some((num_frames, n));
+                                    break;
+                                }
+                                return Err(amc_err(n, format!("unknown bone {:?}", name())));
+                            }
                         }
                     };
                     if line_in_frame < slot_at.len() {
@@ -520,6 +559,18 @@ impl AmcMotion {
             };
             let found = toks.clone().count();
             if found != count {
+                // A short last line of numbers (the last one perhaps cut):
+                // the file ends inside it.
+                let cut_line = found < count
+                    && last()
+                    && toks.clone().all(|t| {
+                        parse_decimal(t).is_some_and(f64::is_finite)
+                            || (is_number_prefix(t) && ends_at_end(bytes, t))
+                    });
+                if cut_line {
+                    cut = Some((num_frames, n));
+                    break;
+                }
                 return Err(ErrorKind::ChannelCount {
                     line: n,
                     expected: count,
@@ -527,13 +578,23 @@ impl AmcMotion {
                 });
             }
             for (k, t) in toks.enumerate() {
-                let v = number_bytes(n, t).map_err(|e| match e {
-                    ErrorKind::NonFinite { what, .. } => ErrorKind::NonFinite {
-                        frame: num_frames - 1,
-                        what: format!("bone {}, {what}", name()),
-                    },
-                    e => e,
-                })?;
+                let v = match number_bytes(n, t) {
+                    Ok(v) => v,
+                    // A value cut by the end of the file.
+                    Err(ErrorKind::NonNumeric { .. })
+                        if is_number_prefix(t) && ends_at_end(bytes, t) =>
+                    {
+                        cut = Some((num_frames, n));
+                        break;
+                    }
+                    Err(ErrorKind::NonFinite { what, .. }) => {
+                        return Err(ErrorKind::NonFinite {
+                            frame: num_frames - 1,
+                            what: format!("bone {}, {what}", name()),
+                        })
+                    }
+                    Err(e) => return Err(e),
+                };
                 let is_angle = slot != 0 || matches!(skeleton.root_order[k], RootDof::R(_));
                 values[base + offset + k] = if is_angle && degrees {
                     v.to_radians()
@@ -541,9 +602,31 @@ impl AmcMotion {
                     v
                 };
             }
+            if cut.is_some() {
+                break;
+            }
             seen[slot] = true;
         }
-        finish(&seen, frame, last_line, true)?;
+        // The file ends inside a frame: cut by the end of the file, or its
+        // last frame lacks lines.
+        let cut = cut.or_else(|| {
+            frame
+                .filter(|_| missing(&seen).is_some())
+                .map(|num| (num, last_line))
+        });
+        let truncation = cut.map(|(num, line)| Truncation {
+            expected: num,
+            found: num - 1,
+            line,
+            leading: 0,
+        });
+        if let Some(t) = truncation {
+            if t.found == 0 {
+                return Err(t.to_error());
+            }
+            num_frames = t.found;
+            values.truncate(num_frames * per_frame);
+        }
         if num_frames == 0 {
             return Err(ErrorKind::NoFrames);
         }
@@ -551,7 +634,14 @@ impl AmcMotion {
             skeleton,
             values,
             num_frames,
+            truncation,
         })
+    }
+
+    /// Where the file was cut, if it ends inside its last frame (the
+    /// complete frames before it are the motion).
+    pub fn truncation(&self) -> Option<Truncation> {
+        self.truncation
     }
 
     /// Number of frames.

@@ -3,7 +3,7 @@
 //! motion table in one validating pass (values per line, frame count,
 //! non-finite values, line numbers; `Frames:` is never trusted for memory).
 
-use crate::error::{check_text, snippet, ErrorKind};
+use crate::error::{check_text, ends_at_end, is_number_prefix, snippet, ErrorKind, Truncation};
 use crate::math::{add, norm, scale, Axis, Mat3, Vec3};
 use crate::skeleton::{
     bvh_joints, recognise_bvh, BvhJoint, Pose, SkeletonKind, CMU_REFERENCE_LEG,
@@ -43,28 +43,34 @@ pub struct BvhMotion {
     num_channels: usize,
     first_frame: usize,
     num_frames: usize,
+    truncation: Option<Truncation>,
 }
 
 impl BvhMotion {
-    /// Parse and validate a BVH file.
+    /// Parse and validate a BVH file. A file that ends inside its motion
+    /// reads with its complete frames ([`BvhMotion::truncation`]); if it has
+    /// no complete motion frame, or fails any later check, the error is
+    /// [`ErrorKind::Truncated`], as its cut is what is wrong with it.
     pub fn parse(bytes: &[u8]) -> Result<BvhMotion, ErrorKind> {
         let tree = Tree::parse(bytes)?;
+        let truncation = tree.truncation;
+        let fail = |k: ErrorKind| truncation.map_or(k, Truncation::to_error);
         let name_refs: Vec<&str> = tree.names.iter().flatten().map(String::as_str).collect();
         let skeleton = recognise_bvh(&name_refs)
-            .map_err(|(closest, missing)| ErrorKind::UnknownSkeleton { closest, missing })?;
+            .map_err(|(closest, missing)| fail(ErrorKind::UnknownSkeleton { closest, missing }))?;
         let mut kept = [0usize; NUM_JOINTS];
         for (k, want) in bvh_joints(skeleton).iter().enumerate() {
-            kept[k] = find_joint(&tree, *want)?;
+            kept[k] = find_joint(&tree, *want).map_err(fail)?;
         }
         let mut joints = tree.joints;
         let unit_scale = match skeleton {
-            SkeletonKind::Daz => daz_hips(&mut joints, &mut kept)?,
+            SkeletonKind::Daz => daz_hips(&mut joints, &mut kept).map_err(fail)?,
             _ => 1.0,
         };
-        let needed = ancestors_closure(&joints, &kept)?;
+        let needed = ancestors_closure(&joints, &kept).map_err(fail)?;
         let first_frame = usize::from(skeleton.has_tpose_frame());
         if tree.frames <= first_frame {
-            return Err(ErrorKind::NoFrames);
+            return Err(fail(ErrorKind::NoFrames));
         }
         Ok(BvhMotion {
             skeleton,
@@ -77,12 +83,22 @@ impl BvhMotion {
             num_channels: tree.channels,
             first_frame,
             num_frames: tree.frames - first_frame,
+            truncation: truncation.map(|t| Truncation {
+                leading: first_frame,
+                ..t
+            }),
         })
     }
 
     /// Number of motion frames (T-pose excluded).
     pub fn num_frames(&self) -> usize {
         self.num_frames
+    }
+
+    /// Where the file was cut, if it ends inside its motion (the complete
+    /// frames before the cut are the motion).
+    pub fn truncation(&self) -> Option<Truncation> {
+        self.truncation
     }
 
     /// Global positions of the kept joints at `frame` (0-based, T-pose
@@ -220,9 +236,12 @@ struct Tree {
     names: Vec<Option<String>>,
     values: Vec<f64>,
     channels: usize,
+    /// Complete frames (all of `Frames:` unless the file is cut short).
     frames: usize,
     /// Seconds per frame.
     frame_time: f64,
+    /// Set when the file ends inside its motion.
+    truncation: Option<Truncation>,
 }
 
 impl Tree {
@@ -240,6 +259,7 @@ impl Tree {
             channels: h.channels,
             frames: table.frames,
             frame_time: table.frame_time,
+            truncation: table.truncation,
         })
     }
 }
@@ -597,13 +617,19 @@ fn split_motion(bytes: &[u8]) -> Result<(usize, usize), ErrorKind> {
 
 struct MotionTable {
     values: Vec<f64>,
+    /// Complete frames read (`Frames:` unless the file is cut short).
     frames: usize,
     frame_time: f64,
+    /// Set when the file ends before its last frame is complete.
+    truncation: Option<Truncation>,
 }
 
 /// Parse the motion section starting at 1-based line `motion_line`
 /// (`MOTION`, `Frames: N`, `Frame Time: S`, then N lines of `channels` values),
-/// checking every line.
+/// checking every line. A file cut short (fewer lines than `Frames:` says, a
+/// short last line, or a last value cut at the very end of the file) keeps
+/// its complete frames and says so in `truncation`; damage anywhere else is
+/// an error.
 fn parse_motion(
     bytes: &[u8],
     motion_line: usize,
@@ -645,6 +671,12 @@ fn parse_motion(
     let mut values = Vec::with_capacity((frames * channels).min(bytes.len() / 2));
     let mut found = 0usize;
     let mut last_line = n;
+    let cut = |found: usize, line: usize| Truncation {
+        expected: frames,
+        found,
+        line,
+        leading: 0,
+    };
     while let Some((n, line)) = lines.next() {
         last_line = n;
         let before = values.len();
@@ -655,18 +687,32 @@ fn parse_motion(
                 what: format!("channel {ch} ({}) at line {n}", owner(ch)),
             });
         }
-        parsed.map_err(|t| ErrorKind::NonNumeric {
-            line: n,
-            token: snippet(t),
-        })?;
+        if let Err(t) = parsed {
+            // A number cut by the end of the file ends the motion there.
+            if values.len() - before < channels && is_number_prefix(t) && ends_at_end(bytes, t) {
+                values.truncate(found * channels);
+                return Ok(MotionTable {
+                    values,
+                    frames: found,
+                    frame_time,
+                    truncation: Some(cut(found, n)),
+                });
+            }
+            return Err(ErrorKind::NonNumeric {
+                line: n,
+                token: snippet(t),
+            });
+        }
         let count = values.len() - before;
         if count != channels {
             // A short final line is a truncated file, not a layout error.
             if count < channels && lines.next().is_none() {
-                return Err(ErrorKind::Truncated {
-                    expected: frames,
-                    found,
-                    line: n,
+                values.truncate(found * channels);
+                return Ok(MotionTable {
+                    values,
+                    frames: found,
+                    frame_time,
+                    truncation: Some(cut(found, n)),
                 });
             }
             return Err(ErrorKind::ChannelCount {
@@ -683,17 +729,11 @@ fn parse_motion(
             ));
         }
     }
-    if found < frames {
-        return Err(ErrorKind::Truncated {
-            expected: frames,
-            found,
-            line: last_line,
-        });
-    }
     Ok(MotionTable {
         values,
-        frames,
+        frames: found,
         frame_time,
+        truncation: (found < frames).then(|| cut(found, last_line)),
     })
 }
 

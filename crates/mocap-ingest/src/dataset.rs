@@ -17,7 +17,7 @@ use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
 use parquet::schema::types::ColumnPath;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fs::File;
@@ -30,8 +30,10 @@ use std::sync::Arc;
 const CHUNK: usize = 16;
 
 /// Version of the dataset layout written here (2: take ids from paths for
-/// non-CMU names, `take` and `kept` in `skipped.json`, Zstandard).
-pub const FORMAT_VERSION: u32 = 2;
+/// non-CMU names, `take` and `kept` in `skipped.json`, Zstandard; 3: files
+/// cut short keep their complete frames, `warnings` and `options.strict` in
+/// the manifest).
+pub const FORMAT_VERSION: u32 = 3;
 
 /// The three splits, in this order everywhere.
 pub const SPLITS: [&str; 3] = ["train", "val", "test"];
@@ -110,6 +112,9 @@ pub struct DatasetOptions {
     pub exclude: BTreeSet<String>,
     /// Compression and float encoding of the tables.
     pub encoding: Encoding,
+    /// Skip files that end inside their motion (code `truncated`), as
+    /// format 2 did, instead of keeping their complete frames with a warning.
+    pub strict: bool,
 }
 
 impl Default for DatasetOptions {
@@ -124,6 +129,7 @@ impl Default for DatasetOptions {
             std_floor: 1e-3,
             exclude: BTreeSet::new(),
             encoding: Encoding::ZstdByteStreamSplit,
+            strict: false,
         }
     }
 }
@@ -180,6 +186,54 @@ pub struct Skipped {
     pub kept: Option<String>,
 }
 
+/// A take in the dataset with something to know about it (`manifest.json`'s
+/// `warnings`, in take order).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
+pub struct Warning {
+    /// The file the take was read from.
+    pub file: String,
+    /// The take.
+    pub take: String,
+    /// What: `truncated` (the file ends inside its motion; its complete
+    /// frames were kept).
+    pub kind: String,
+    /// Motion frames kept (the take's `native_frames`).
+    pub frames_kept: usize,
+    /// Motion frames the file was to hold (a BVH's `Frames:`, an AMC's
+    /// number of the frame it ends in; a BVH T-pose frame not counted).
+    pub frames_expected: usize,
+    /// The full message.
+    pub message: String,
+}
+
+impl Warning {
+    /// The warning for a take kept from a file cut short.
+    pub fn truncated(file: &str, take: &str, t: &crate::Truncation) -> Warning {
+        Warning {
+            file: file.to_string(),
+            take: take.to_string(),
+            kind: "truncated".into(),
+            frames_kept: t.frames_kept(),
+            frames_expected: t.frames_expected(),
+            message: format!(
+                "{file}: the file ends inside its motion (line {}): kept its {} complete frames of {}",
+                t.line,
+                t.frames_kept(),
+                t.frames_expected()
+            ),
+        }
+    }
+}
+
+/// The `warnings` of a dataset's `manifest.json` (none in a manifest written
+/// before they existed, format 2).
+pub fn manifest_warnings(manifest: &serde_json::Value) -> Result<Vec<Warning>, String> {
+    match manifest.get("warnings") {
+        None | Some(serde_json::Value::Null) => Ok(Vec::new()),
+        Some(w) => Vec::<Warning>::deserialize(w).map_err(|e| format!("manifest warnings: {e}")),
+    }
+}
+
 /// Takes that came in more than one copy (the same CMU trial in several
 /// files) and which copy was kept.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
@@ -193,6 +247,9 @@ pub struct Duplicates {
     /// Copies that read but were retargeted (Daz-friendly) and yielded to a
     /// later copy with the subject's own skeleton.
     pub superseded: usize,
+    /// Copies that read but end inside their motion, and yielded to a
+    /// complete copy (or to a copy read before them).
+    pub truncated_yielded: usize,
     /// Copies never read because an earlier copy was kept.
     pub unread: usize,
 }
@@ -226,6 +283,8 @@ pub struct BuildSummary {
     pub excluded: usize,
     /// Ids of the exclude list that matched no take.
     pub exclude_unmatched: Vec<String>,
+    /// Takes written with a warning (files cut short), in take order.
+    pub warnings: Vec<Warning>,
 }
 
 #[derive(Serialize)]
@@ -328,7 +387,7 @@ struct GroupDone {
 /// Open readers of one worker, one per source (opened on first use).
 type Readers = Vec<Option<crate::source::SourceReader>>;
 
-fn run_copy(copy: &Copy, readers: &mut Readers, opts: &Options) -> Attempt {
+fn run_copy(copy: &Copy, readers: &mut Readers, opts: &Options, strict: bool) -> Attempt {
     let mut inputs = Vec::new();
     let slot = &mut readers[copy.source_index];
     let reader = match slot {
@@ -352,32 +411,38 @@ fn run_copy(copy: &Copy, readers: &mut Readers, opts: &Options) -> Attempt {
         };
         process_take_with(&copy.take, |f| copy.source.portable_file(f), read, opts)
     });
+    // Strict: a file cut short is refused, as in format 2.
+    let result = result.and_then(|clip| match clip.truncation {
+        Some(t) if strict => Err(IngestError::new(&copy.file, t.to_error())),
+        _ => Ok(clip),
+    });
     Attempt { result, inputs }
 }
 
 /// Read the copies of a take in order of preference until one succeeds. A
-/// copy retargeted onto another figure (Daz-friendly BVH) is kept only if no
-/// later copy with the subject's own skeleton reads.
+/// copy retargeted onto another figure (Daz-friendly BVH) or cut short (the
+/// file ends inside its motion) is kept only if no later copy reads whole
+/// with the subject's own skeleton.
 fn run_group(
     group: &Group,
     readers: &mut Readers,
-    opts: &Options,
+    opts: &DatasetOptions,
     progress: &dyn Progress,
 ) -> GroupDone {
     let mut attempts = Vec::new();
     let mut kept = None;
     for copy in &group.copies {
-        let a = run_copy(copy, readers, opts);
+        let a = run_copy(copy, readers, &opts.ingest, opts.strict);
         progress.file_done(&copy.file, a.result.is_ok());
-        let own_skeleton = match &a.result {
-            Ok(clip) => clip.skeleton != crate::SkeletonKind::Daz,
+        let whole = match &a.result {
+            Ok(clip) => clip.skeleton != crate::SkeletonKind::Daz && clip.truncation.is_none(),
             Err(_) => false,
         };
-        if (a.result.is_ok() && kept.is_none()) || own_skeleton {
+        if (a.result.is_ok() && kept.is_none()) || whole {
             kept = Some(attempts.len());
         }
         attempts.push(a);
-        if own_skeleton {
+        if whole {
             break;
         }
     }
@@ -774,11 +839,35 @@ impl Tally<'_> {
                     };
                     self.skip(&e.file, id, e.code(), message, k);
                 }
-                Ok(_) => {
-                    self.summary.duplicates.superseded += 1;
+                Ok(clip) => {
+                    let kept_clip = d
+                        .kept
+                        .and_then(|j| d.attempts.get(j))
+                        .and_then(|a| a.result.as_ref().ok());
+                    let kept_own =
+                        kept_clip.is_some_and(|c| c.skeleton != crate::SkeletonKind::Daz);
+                    let why = match clip.truncation {
+                        Some(t) if !(kept_own && clip.skeleton == crate::SkeletonKind::Daz) => {
+                            self.summary.duplicates.truncated_yielded += 1;
+                            let other = if kept_clip.is_some_and(|c| c.truncation.is_none()) {
+                                "is complete"
+                            } else {
+                                "was read first"
+                            };
+                            format!(
+                                "it ends inside its motion ({} of {} frames) and \
+                                 the copy {kept_name} {other}",
+                                t.frames_kept(),
+                                t.frames_expected()
+                            )
+                        }
+                        _ => {
+                            self.summary.duplicates.superseded += 1;
+                            format!("the copy {kept_name} has the subject's own skeleton")
+                        }
+                    };
                     let message = format!(
-                        "{}: duplicate take {id}, read but not kept: \
-                         the copy {kept_name} has the subject's own skeleton",
+                        "{}: duplicate take {id}, read but not kept: {why}",
                         copy.file
                     );
                     self.skip(&copy.file, id, "duplicate_take", message, k);
@@ -807,6 +896,11 @@ impl Tally<'_> {
         }
         self.kept_content
             .insert(content, (id.clone(), copy.file.clone()));
+        if let Some(t) = &clip.truncation {
+            self.summary
+                .warnings
+                .push(Warning::truncated(&copy.file, &clip.take_id, t));
+        }
         self.add_take(copy, clip);
         Some((clip, copy.take.subject.as_str()))
     }
@@ -892,7 +986,7 @@ fn read_all(
                 .par_iter()
                 .map_init(
                     || -> Readers { (0..num_sources).map(|_| None).collect() },
-                    |readers, group| run_group(group, readers, &opts.ingest, progress),
+                    |readers, group| run_group(group, readers, opts, progress),
                 )
                 .collect();
             let ok: Vec<(&Clip, &str)> = chunk
@@ -997,6 +1091,7 @@ fn write_all(
             "exclude": opts.exclude,
             "asf": asf,
             "encoding": opts.encoding.name(),
+            "strict": opts.strict,
         },
         "counts": {
             "files": summary.files,
@@ -1008,7 +1103,9 @@ fn write_all(
             "frames": summary.frames,
             "takes_per_split": split_map(summary.takes_per_split),
             "windows_per_split": split_map(summary.windows_per_split),
+            "warnings": summary.warnings.len(),
         },
+        "warnings": summary.warnings,
         "inputs": inputs.values().collect::<Vec<_>>(),
         "outputs": outputs,
     });
@@ -1217,6 +1314,126 @@ fn swap_into_place(staging: &Path, out: &Path) -> Result<(), DatasetError> {
         });
     }
     crate::atomic::replace_dir(staging, out).map_err(|e| write_err(out, e))
+}
+
+impl BuildSummary {
+    /// The summary `cargo xtask dataset` prints: counts, skipped files by
+    /// reason, copies, warnings, splits, speed (`dir`: where the dataset went;
+    /// `rss`: peak resident set size in KiB, if known).
+    pub fn report(&self, dir: &Path, seconds: f64, threads: usize, rss: Option<u64>) -> String {
+        use std::fmt::Write as _;
+        let s = self;
+        let out_dir = dir;
+        let mut out = String::new();
+
+        let _ = writeln!(out, "dataset written to {}", out_dir.display());
+        let _ = writeln!(out, "  files found        {:>10}", s.files);
+        let _ = writeln!(out, "  takes written      {:>10}", s.takes);
+        for ((format, skeleton), n) in &s.takes_by_skeleton {
+            let _ = writeln!(out, "    {format:<4} {skeleton:<33} {n:>6}");
+        }
+        let _ = writeln!(out, "  files skipped      {:>10}", s.skipped.len());
+        let mut by_code: BTreeMap<&str, usize> = BTreeMap::new();
+        for k in &s.skipped {
+            *by_code.entry(k.code.as_str()).or_default() += 1;
+        }
+        for (code, n) in &by_code {
+            let _ = writeln!(out, "    {code:<16} {n:>10}");
+        }
+        let d = &s.duplicates;
+        if d.takes > 0 {
+            let kept: Vec<String> = d
+                .kept_by_format
+                .iter()
+                .map(|(f, n)| format!("{n} {f}"))
+                .collect();
+            let _ = writeln!(
+                out,
+                "  takes in several copies {:>5}   kept: {}; {} after the preferred copy failed; \
+             {} retargeted (Daz) copies read but yielded to the subject's skeleton; \
+             {} copies cut short yielded to another copy; {} copies not read",
+                d.takes,
+                if kept.is_empty() {
+                    "none".into()
+                } else {
+                    kept.join(", ")
+                },
+                d.fell_back,
+                d.superseded,
+                d.truncated_yielded,
+                d.unread
+            );
+        }
+        if s.excluded > 0 || !s.exclude_unmatched.is_empty() {
+            let _ = writeln!(out, "  excluded files     {:>10}", s.excluded);
+        }
+        if !s.exclude_unmatched.is_empty() {
+            let _ = writeln!(
+                out,
+                "  exclude-list ids matching no take: {}",
+                s.exclude_unmatched.join(", ")
+            );
+        }
+        let _ = writeln!(
+            out,
+            "  input frames       {:>10}   (native rate)",
+            s.native_frames
+        );
+        let _ = writeln!(out, "  frames written     {:>10}   (30 fps)", s.frames);
+        let _ = writeln!(out, "  takes < 1 window   {:>10}", s.short_takes);
+        let _ = writeln!(
+            out,
+            "  takes cut short    {:>10}   (complete frames kept, see warnings)",
+            s.warnings.len()
+        );
+        let _ = writeln!(out, "  {:<8} {:>8} {:>10}", "split", "takes", "windows");
+        for (i, split) in SPLITS.iter().enumerate() {
+            let _ = writeln!(
+                out,
+                "  {:<8} {:>8} {:>10}",
+                split, s.takes_per_split[i], s.windows_per_split[i]
+            );
+        }
+        let rss = rss.map_or("?".to_string(), |k| format!("{:.0} MiB", k as f64 / 1024.0));
+        let _ = writeln!(
+            out,
+            "  {seconds:.2} s on {threads} threads, {:.0} input frames/s, peak RSS {rss}",
+            s.native_frames as f64 / seconds
+        );
+        // Duplicates that were simply not read and excluded files are routine;
+        // list the files that failed.
+        let failed: Vec<_> = s
+            .skipped
+            .iter()
+            .filter(|k| !matches!(k.code.as_str(), "duplicate_take" | "excluded"))
+            .collect();
+        if !s.warnings.is_empty() {
+            let _ = writeln!(
+                out,
+                "warnings: files that end inside their motion, their complete frames kept \
+             (all in manifest.json; --strict skips them):"
+            );
+            for w in s.warnings.iter().take(20) {
+                let _ = writeln!(out, "  {}", w.message);
+            }
+            if s.warnings.len() > 20 {
+                let _ = writeln!(out, "  … and {} more", s.warnings.len() - 20);
+            }
+        }
+        if !failed.is_empty() {
+            let _ = writeln!(
+                out,
+                "files that failed (all skipped files are in skipped.json):"
+            );
+            for k in failed.iter().take(20) {
+                let _ = writeln!(out, "  {}", k.message);
+            }
+            if failed.len() > 20 {
+                let _ = writeln!(out, "  … and {} more", failed.len() - 20);
+            }
+        }
+        out
+    }
 }
 
 #[cfg(test)]

@@ -126,6 +126,81 @@ pub enum ErrorKind {
     NoFrames,
 }
 
+/// Where a file that ends inside its motion was cut, and what it still holds.
+///
+/// A file whose only damage is its end (it stops inside, or before the end
+/// of, its motion: a BVH with fewer frame lines than `Frames:` says or a
+/// short last line, an AMC whose last frame lacks lines or ends mid-line)
+/// reads with its complete frames; this records the cut, so callers can warn
+/// or, when strict, refuse the file with [`ErrorKind::Truncated`]
+/// ([`Truncation::to_error`], the error such a file always gave before).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Truncation {
+    /// Frames the file was to hold, counted as in the file: a BVH's
+    /// `Frames:` (a T-pose frame included), an AMC's number of the frame it
+    /// ends in.
+    pub expected: usize,
+    /// Complete frames the file holds, counted the same way.
+    pub found: usize,
+    /// Last line of the file (1-based).
+    pub line: usize,
+    /// Leading frames of the file that are not motion (a BVH T-pose frame):
+    /// `found - leading` motion frames are kept.
+    pub leading: usize,
+}
+
+impl Truncation {
+    /// The error a strict reader gives for this file.
+    pub fn to_error(self) -> ErrorKind {
+        ErrorKind::Truncated {
+            expected: self.expected,
+            found: self.found,
+            line: self.line,
+        }
+    }
+
+    /// Motion frames kept (as `native_frames` counts them: a BVH T-pose
+    /// frame excluded).
+    pub fn frames_kept(&self) -> usize {
+        self.found.saturating_sub(self.leading)
+    }
+
+    /// Motion frames the file was to hold, counted like [`Self::frames_kept`].
+    pub fn frames_expected(&self) -> usize {
+        self.expected.saturating_sub(self.leading)
+    }
+}
+
+/// Whether `token` could be the start of a decimal number cut short
+/// (`-`, `12.`, `1e`, `1.5E-`): what is left of a value when a file ends
+/// inside it.
+pub(crate) fn is_number_prefix(token: &[u8]) -> bool {
+    let t = token
+        .strip_prefix(b"-")
+        .or_else(|| token.strip_prefix(b"+"))
+        .unwrap_or(token);
+    let (mantissa, exponent) = match t.iter().position(|&b| b == b'e' || b == b'E') {
+        Some(i) => (&t[..i], Some(&t[i + 1..])),
+        None => (t, None),
+    };
+    let dots = mantissa.iter().filter(|&&b| b == b'.').count();
+    let mantissa_ok = dots <= 1 && mantissa.iter().all(|&b| b == b'.' || b.is_ascii_digit());
+    let exponent_ok = exponent.is_none_or(|e| {
+        let e = e
+            .strip_prefix(b"-")
+            .or_else(|| e.strip_prefix(b"+"))
+            .unwrap_or(e);
+        mantissa.iter().any(u8::is_ascii_digit) && e.iter().all(u8::is_ascii_digit)
+    });
+    mantissa_ok && exponent_ok
+}
+
+/// Whether `part` (a slice of `whole`) runs to the end of `whole`: the file
+/// ends inside it.
+pub(crate) fn ends_at_end(whole: &[u8], part: &[u8]) -> bool {
+    std::ptr::eq(part.as_ptr_range().end, whole.as_ptr_range().end)
+}
+
 fn at_line(line: Option<usize>) -> String {
     match line {
         Some(l) => format!(" at line {l}"),
@@ -181,5 +256,30 @@ pub(crate) fn check_text(bytes: &[u8]) -> Result<(), ErrorKind> {
             byte: bytes[offset],
         }),
         None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn number_prefixes_are_what_is_left_of_a_cut_number() {
+        for t in ["-", "+", ".", "-.", "12.", "1e", "1.5E-", "-0.25e+", "7"] {
+            assert!(is_number_prefix(t.as_bytes()), "{t}");
+        }
+        for t in [
+            "e", "-e5", "1.2.3", "1e5e", "1e-+", "abc", "nan", "1,5", "0x1F", "--1",
+        ] {
+            assert!(!is_number_prefix(t.as_bytes()), "{t}");
+        }
+    }
+
+    #[test]
+    fn a_part_ends_at_the_end_only_if_it_is_the_tail() {
+        let text = b"1 2 3";
+        assert!(ends_at_end(text, &text[4..]));
+        assert!(!ends_at_end(text, &text[2..3]));
+        assert!(!ends_at_end(text, b"3"));
     }
 }

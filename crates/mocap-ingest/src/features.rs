@@ -193,8 +193,35 @@ pub fn to_global(frames: &[FeatureVec]) -> Vec<Pose> {
     out
 }
 
+/// Minimum, mean and maximum of each feature over `frames` (NaN when empty).
+pub fn ranges(frames: &[FeatureVec]) -> Vec<[f64; 3]> {
+    (0..NUM_FEATURES)
+        .map(|i| {
+            let (lo, hi, sum) = frames
+                .iter()
+                .map(|f| f[i])
+                .fold((f64::INFINITY, f64::NEG_INFINITY, 0.0), |(a, b, s), v| {
+                    (a.min(v), b.max(v), s + v)
+                });
+            [lo, sum / frames.len() as f64, hi]
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn ranges_are_min_mean_max_per_feature() {
+        let mut a = [0.0; NUM_FEATURES];
+        let mut b = [0.0; NUM_FEATURES];
+        a[3] = -1.0;
+        b[3] = 4.0;
+        let r = super::ranges(&[a, b]);
+        assert_eq!(r.len(), NUM_FEATURES);
+        assert_eq!(r[3], [-1.0, 1.5, 4.0]);
+        assert_eq!(r[0], [0.0, 0.0, 0.0]);
+    }
     use super::*;
 
     /// A T-pose standing at `(x, z)`, facing +z, hips at height 9, rotated by

@@ -10,6 +10,7 @@
 
 pub mod asf;
 pub mod atomic;
+pub mod bench;
 pub mod bvh;
 pub mod dataset;
 pub mod error;
@@ -20,7 +21,7 @@ pub mod skeleton;
 pub mod source;
 mod text;
 
-pub use error::{ErrorKind, IngestError};
+pub use error::{ErrorKind, IngestError, Truncation};
 pub use features::{FeatureVec, NUM_FEATURES};
 pub use skeleton::{Pose, SkeletonKind, JOINT_NAMES, NUM_JOINTS};
 
@@ -60,6 +61,15 @@ impl Motion {
         match self {
             Motion::Bvh(b) => b.num_frames(),
             Motion::Amc(a) => a.num_frames(),
+        }
+    }
+
+    /// Where the file was cut, if it ends inside its motion: the motion is
+    /// then its complete frames (see [`Truncation`]).
+    pub fn truncation(&self) -> Option<Truncation> {
+        match self {
+            Motion::Bvh(b) => b.truncation(),
+            Motion::Amc(a) => a.truncation(),
         }
     }
 
@@ -127,16 +137,23 @@ pub struct Clip {
     pub native_frames: usize,
     /// Features at the target rate.
     pub features: Vec<FeatureVec>,
+    /// Set when the file ends inside its motion: the take is its complete
+    /// frames (`native_frames` of [`Truncation::frames_expected`]). Callers
+    /// warn about it, or refuse the file ([`Truncation::to_error`]).
+    pub truncation: Option<Truncation>,
 }
 
 /// Resample a motion to `options.target_fps` and compute its features.
+/// A motion cut short that fails here fails as [`ErrorKind::Truncated`]: the
+/// cut is what is wrong with its file.
 pub fn clip_from_motion(
     file: &str,
     take_id: &str,
     motion: &Motion,
     options: &Options,
 ) -> Result<Clip, IngestError> {
-    let err = |k| IngestError::new(file, k);
+    let truncation = motion.truncation();
+    let err = |k| IngestError::new(file, truncation.map_or(k, Truncation::to_error));
     let source_fps = options.frame_rates.resolve(take_id, motion.declared_fps());
     let idx =
         fps::resample_indices(motion.num_frames(), source_fps, options.target_fps).map_err(err)?;
@@ -148,6 +165,7 @@ pub fn clip_from_motion(
         source_fps,
         native_frames: motion.num_frames(),
         features,
+        truncation,
     })
 }
 

@@ -122,6 +122,16 @@ impl Canvas {
         let _ = self.backend().draw_text(s, &style, (x, y));
     }
 
+    /// Width in pixels of `s` drawn by [`Canvas::text`] at `size` pixels (0
+    /// if the font cannot lay it out).
+    pub fn text_width(s: &str, size: f64) -> u32 {
+        register_embedded_font();
+        (FONT_FAMILY, size)
+            .into_font()
+            .box_size(s)
+            .map_or(0, |(w, _)| w)
+    }
+
     /// The pixels as RGB bytes, row by row.
     pub fn rgb(&self) -> Vec<u8> {
         // Opaque everywhere, so premultiplied RGBA is plain RGBA.

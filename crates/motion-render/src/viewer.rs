@@ -221,6 +221,36 @@ pub fn screenshot(
     std::fs::rename(&tmp, png).map_err(|e| fail(format!("no screenshot ({}): {e}", tmp.display())))
 }
 
+/// The screenshots worth taking of a viewer file at `frame`: `(PNG name,
+/// query)` for the first set, and for each overlaid set that `cargo xtask
+/// sample` writes (real vs reconstruction, generated vs its BVH read back)
+/// when the file has it.
+pub fn screenshots_of(
+    html: &Path,
+    frame: usize,
+) -> Result<Vec<(&'static str, String)>, RenderError> {
+    let text = std::fs::read_to_string(html).map_err(|source| RenderError::Io {
+        path: html.to_path_buf(),
+        source,
+    })?;
+    // The sets in the file, in order.
+    let names: Vec<&str> = text
+        .split("\"name\":\"")
+        .skip(1)
+        .filter_map(|t| t.split('"').next())
+        .collect();
+    let mut shots = vec![("viewer_samples.png", format!("?set=0&frame={frame}"))];
+    for (name, file) in [
+        ("real vs reconstruction", "viewer_pairs.png"),
+        ("generated vs its BVH read back", "viewer_bvh.png"),
+    ] {
+        if let Some(k) = names.iter().position(|n| *n == name) {
+            shots.push((file, format!("?set={k}&overlay=1&frame={frame}")));
+        }
+    }
+    Ok(shots)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,8 +4,9 @@
 //! of `docs/metrics.md` at once (used to choose the `best` checkpoint).
 
 use crate::data::{Dataset, Stats, Windows};
+use crate::error::TrainError;
 use crate::model::MotionModel;
-use crate::train::{noise, TrainError};
+use crate::rng::noise;
 use candle_core::Device;
 use mocap_ingest::features::{to_global, FeatureVec, NUM_FEATURES};
 use mocap_ingest::skeleton::Pose;

@@ -13,14 +13,21 @@
 //! - [`generate`]: motions sampled from a model, back in global positions,
 //!   and the [`generate::Judge`] that chooses checkpoints by them.
 //! - [`optim`]: Adam with saveable state; gradient-norm clipping.
+//! - [`options`]: overrides of a training configuration, one per option.
+//! - [`bench`]: the speed of a training step and of sampling.
 //! - [`train`]: the training loop, checkpoints, resume, metrics.
-//! - [`rng`]: the seeded RNG behind every random number.
+//! - [`rng`]: the seeded RNG behind every random number (and the
+//!   reparameterisation noise).
+//! - [`error`]: [`error::TrainError`], shared by training and generation.
 
+pub mod bench;
 pub mod blocks;
 pub mod data;
+pub mod error;
 pub mod generate;
 pub mod model;
 pub mod optim;
+pub mod options;
 pub mod rng;
 pub mod train;
 

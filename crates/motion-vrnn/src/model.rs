@@ -36,8 +36,7 @@ use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::VarBuilder;
 use serde::{Deserialize, Serialize};
 
-/// Lower bound on every standard deviation (guards `log σ` and `1/σ²`).
-pub const SIGMA_MIN: f64 = 1e-4;
+pub use crate::blocks::SIGMA_MIN;
 
 /// Every size of the model, and the parts beyond the paper.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

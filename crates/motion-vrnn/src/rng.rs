@@ -50,6 +50,19 @@ impl Rng {
     }
 }
 
+/// Reparameterisation noise of global step `step`: `[T, B, latent]`.
+pub fn noise(
+    seed: u64,
+    step: u64,
+    t: usize,
+    b: usize,
+    latent: usize,
+    device: &candle_core::Device,
+) -> candle_core::Result<candle_core::Tensor> {
+    let v = Rng::new(seed ^ 0x5EED_0000_0000, step).normals(t * b * latent);
+    candle_core::Tensor::from_vec(v, (t, b, latent), device)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -3,9 +3,12 @@
 //! exact resume, a NaN guard.
 
 use crate::data::{Dataset, Windows};
+use crate::error::io_err;
+pub use crate::error::TrainError;
 use crate::generate::{Judge, Verdict};
 use crate::model::{Config, Losses, MotionModel, Vrnn};
 use crate::optim::{clip_grad_norm, Adam, AdamConfig};
+pub use crate::rng::noise;
 use crate::rng::Rng;
 use candle_core::backprop::GradStore;
 use candle_core::{DType, Device, Tensor, Var};
@@ -14,47 +17,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::io::Write;
-use std::path::{Path, PathBuf};
-
-/// A failure that stops training.
-#[derive(Debug, thiserror::Error)]
-pub enum TrainError {
-    /// A tensor operation failed.
-    #[error("tensor error: {0}")]
-    Candle(#[from] candle_core::Error),
-    /// A file could not be read or written.
-    #[error("{path}: {message}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// What failed.
-        message: String,
-    },
-    /// The loss became NaN or infinite.
-    #[error("non-finite loss at step {step} (epoch {epoch}): recon {recon}, kl {kl}; the last good checkpoint is kept in {dir}")]
-    NonFinite {
-        /// Global step.
-        step: u64,
-        /// Epoch.
-        epoch: usize,
-        /// Reconstruction loss.
-        recon: f32,
-        /// KL loss.
-        kl: f32,
-        /// Run directory.
-        dir: PathBuf,
-    },
-    /// Options or inputs that cannot work.
-    #[error("{0}")]
-    Invalid(String),
-}
-
-fn io_err(path: &Path, e: impl std::fmt::Display) -> TrainError {
-    TrainError::Io {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    }
-}
+use std::path::Path;
 
 /// Training options.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -299,6 +262,9 @@ pub trait TrainProgress {
     fn step(&self, epoch: usize, step: u64, recon: f32, kl: f32, windows_per_s: f64);
     /// After each epoch.
     fn epoch(&self, metrics: &EpochMetrics);
+    /// Something the user should know that does not stop training (e.g. a
+    /// resume that found no checkpoint and started from scratch).
+    fn note(&self, _message: &str) {}
 }
 
 /// No progress output.
@@ -353,19 +319,6 @@ pub fn init_model(config: &Config, seed: u64, device: &Device) -> Result<Trained
 pub fn named_vars(varmap: &VarMap) -> Vec<(String, Var)> {
     let data = varmap.data().lock().unwrap_or_else(|p| p.into_inner());
     data.iter().map(|(k, v)| (k.clone(), v.clone())).collect()
-}
-
-/// Reparameterisation noise of global step `step`: `[T, B, latent]`.
-pub fn noise(
-    seed: u64,
-    step: u64,
-    t: usize,
-    b: usize,
-    latent: usize,
-    device: &Device,
-) -> candle_core::Result<Tensor> {
-    let v = Rng::new(seed ^ 0x5EED_0000_0000, step).normals(t * b * latent);
-    Tensor::from_vec(v, (t, b, latent), device)
 }
 
 /// Windows per shard: a batch is cut into shards of this many windows, run
@@ -537,9 +490,34 @@ pub fn load_model(dir: &Path, device: &Device) -> Result<(Trained, CheckpointMet
     Ok((t, meta))
 }
 
+/// Whether the existing run directory `run` has a `last` checkpoint to
+/// resume from. A run killed in its first epoch has none (its `last/` is
+/// written atomically at the end of each epoch): then training starts from
+/// scratch, the progress is told so, and whatever metrics the run holds are
+/// replaced.
+fn resumable(run: &Path, progress: &dyn TrainProgress) -> Result<bool, TrainError> {
+    let last = run.join(layout::LAST);
+    if last.join(layout::META).is_file() {
+        return Ok(true);
+    }
+    if last.exists() {
+        return Err(TrainError::Invalid(format!(
+            "{}: a checkpoint directory without {}; move it away and train again",
+            last.display(),
+            layout::META
+        )));
+    }
+    progress.note(&format!(
+        "{}: no checkpoint to resume from yet (the run stopped before its first epoch ended); starting from scratch",
+        run.display()
+    ));
+    Ok(false)
+}
+
 /// Train on `data` into the run directory `run`. With `resume`, continue from
-/// `run/last` (weights, optimiser, epoch, best); otherwise `run` must not hold
-/// a checkpoint yet.
+/// `run/last` (weights, optimiser, epoch, best), or start from scratch when
+/// the run has no checkpoint yet ([`TrainProgress::note`] says so);
+/// otherwise `run` must not hold a checkpoint yet.
 pub fn train(
     data: &Dataset,
     config: &TrainConfig,
@@ -574,6 +552,12 @@ pub fn train(
         )));
     }
     let val = data.splits.get("val").filter(|w| w.n > 0);
+    if resume && !run.is_dir() {
+        return Err(TrainError::Invalid(format!(
+            "{}: nothing to resume (no such directory); drop --resume to start a run there",
+            run.display()
+        )));
+    }
     std::fs::create_dir_all(run).map_err(|e| io_err(run, e))?;
     let metrics_path = run.join(layout::METRICS);
 
@@ -597,6 +581,7 @@ pub fn train(
         Select::Generation { every } => Some((Judge::new(data)?, every)),
     };
     let last_dir = run.join(layout::LAST);
+    let resume = resume && resumable(run, progress)?;
     if resume {
         let meta = read_meta(&last_dir)?;
         // Only the number of epochs may change on resume.

@@ -1,6 +1,8 @@
 //! Shared CPU kernels: strided matrix products and vectorisable activations.
 
-use crate::model::SIGMA_MIN;
+/// Lower bound on every standard deviation (guards `log σ` and `1/σ²`):
+/// every σ is a sigmoid clamped to `[SIGMA_MIN, 1]`.
+pub const SIGMA_MIN: f64 = 1e-4;
 
 /// A strided matrix view into a slice: element `(r, c)` is at
 /// `off + r·rs + c·cs`.

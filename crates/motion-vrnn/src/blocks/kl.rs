@@ -24,7 +24,7 @@ pub fn gaussian_kl(q: &Tensor, p: &Tensor) -> Result<Tensor> {
     if t > 1 {
         let mp = p.narrow(1, 1, t - 1)?.narrow(D::Minus1, 0, z)?;
         let sp = candle_nn::ops::sigmoid(&p.narrow(1, 1, t - 1)?.narrow(D::Minus1, z, z)?)?
-            .clamp(crate::model::SIGMA_MIN, 1.0)?;
+            .clamp(super::kernels::SIGMA_MIN, 1.0)?;
         let rest = kl_gaussians(&mq.narrow(1, 1, t - 1)?, &sq.narrow(1, 1, t - 1)?, &mp, &sp)?;
         total = (total + rest.flatten_all()?.sum(0)?)?;
     }

@@ -37,6 +37,7 @@ pub mod linear;
 pub mod scan;
 pub mod skeleton;
 
+pub use kernels::SIGMA_MIN;
 pub use kl::gaussian_kl;
 pub use linear::{linear, squared_error, Act};
 pub use scan::{latent_lstm, lstm_cell};

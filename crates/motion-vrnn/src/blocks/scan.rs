@@ -89,7 +89,7 @@ fn reference(pre: &Tensor, eps: &Tensor, w: &Tensor, d: ScanDims) -> Result<Tens
         let e = (p.narrow(1, 0, 2 * z)? + hs.matmul(&we.t()?)?)?;
         let mu = e.narrow(1, 0, z)?;
         let sg =
-            candle_nn::ops::sigmoid(&e.narrow(1, z, z)?)?.clamp(crate::model::SIGMA_MIN, 1.0)?;
+            candle_nn::ops::sigmoid(&e.narrow(1, z, z)?)?.clamp(super::kernels::SIGMA_MIN, 1.0)?;
         let zz = (&mu + (&sg * eps.narrow(1, step, 1)?.squeeze(1)?)?)?;
         let g = ((p.narrow(1, 2 * z, 4 * h)? + zz.matmul(&wz.t()?)?)? + hs.matmul(&wh.t()?)?)?;
         let (hn, cn) = cell_reference(&g, &cs, h)?;

@@ -1,0 +1,399 @@
+//! Every model trained with several seeds on one dataset, each run
+//! evaluated, and one results page (mean ± std over the seeds, the goals
+//! each model meets, training time, contact sheets).
+
+use crate::report::{report, Contexts, EvalReport};
+use crate::run::RunSpec;
+use crate::samples::{write_samples, SampleOptions};
+use crate::{create_dir, mean_of, EvalError};
+use motion_vrnn::model::Config;
+use motion_vrnn::train::{layout, train, Quiet, TrainConfig};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// What to compare, and where.
+#[derive(Clone, Debug)]
+pub struct CompareOptions {
+    /// Dataset directory.
+    pub data: PathBuf,
+    /// Directory of the runs (`MODEL/seed-N/`); runs already there are reused.
+    pub out: PathBuf,
+    /// Models (names of [`motion_vrnn::model::MODELS`]).
+    pub models: Vec<String>,
+    /// Training seeds per model (0, 1, …).
+    pub seeds: u64,
+    /// Epochs (`None`: the standard schedule's).
+    pub epochs: Option<usize>,
+    /// The results page (contact sheets go to `images/results/` beside it).
+    pub page: PathBuf,
+}
+
+/// Train (or reuse) and evaluate every model × seed of `o`, then write the
+/// results page; returns its Markdown. `log` hears one line per step.
+pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalError> {
+    let page_dir = o.page.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let images = page_dir.join("images").join("results");
+    create_dir(&images)?;
+    let mut data = None;
+    let mut table: Vec<(String, Vec<SeedRun>)> = Vec::new();
+    for name in &o.models {
+        let mut runs = Vec::new();
+        for seed in 0..o.seeds {
+            let dir = o.out.join(name).join(format!("seed-{seed}"));
+            let started = std::time::Instant::now();
+            if dir.join(layout::LAST).join(layout::META).exists() {
+                log(&format!("{name} seed {seed}: reusing {}", dir.display()));
+            } else {
+                log(&format!(
+                    "{name} seed {seed}: training into {}",
+                    dir.display()
+                ));
+                let d = match data {
+                    Some(ref d) => d,
+                    None => {
+                        data.insert(motion_vrnn::data::load(&o.data, &["train", "val"]).map_err(
+                            |source| EvalError::Data {
+                                dir: o.data.clone(),
+                                source,
+                            },
+                        )?)
+                    }
+                };
+                train_one(d, name, seed, o.epochs, &dir)
+                    .map_err(|e| e.within(format!("training {name} seed {seed}")))?;
+            }
+            let seconds = train_seconds(&dir).unwrap_or(started.elapsed().as_secs_f64());
+            let spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
+            let report = report(&spec, Contexts::Split)
+                .map_err(|e| e.within(format!("evaluating {}", dir.display())))?;
+            log(&format!(
+                "{name} seed {seed}: jerk {:.2}x, bone cv {:.2} %, APD {:.2}x, Fréchet {:.1}",
+                report.generated.jerk_m_s3 / report.real.jerk_m_s3,
+                100.0 * report.generated.bone_cv,
+                report.generated.apd_m / report.real.apd_m,
+                report.frechet_generated
+            ));
+            if seed == 0 {
+                let samples = dir.join("samples");
+                let sheet = SampleOptions {
+                    n: 12,
+                    frames: 128,
+                    reconstruct: 0,
+                    sheet_columns: 5,
+                };
+                write_samples(&spec, &sheet, &samples)?;
+                let png = images.join(format!("{name}.png"));
+                std::fs::copy(samples.join("contact_sheet.png"), &png)
+                    .map_err(|source| EvalError::Io { path: png, source })?;
+            }
+            runs.push(SeedRun {
+                seed,
+                seconds,
+                report,
+            });
+        }
+        table.push((name.clone(), runs));
+    }
+    let md = page(o, &table)?;
+    motion_render::write_file(&o.page, md.as_bytes())?;
+    Ok(md)
+}
+
+/// Train model `name` with the standard schedule and `seed` into `dir`
+/// (checkpoints, metrics, `loss.png`), as `cargo xtask train --model NAME
+/// --seed SEED` does.
+fn train_one(
+    data: &motion_vrnn::data::Dataset,
+    name: &str,
+    seed: u64,
+    epochs: Option<usize>,
+    dir: &Path,
+) -> Result<(), EvalError> {
+    let mut cfg = TrainConfig::standard();
+    cfg.model =
+        Config::named(name).ok_or_else(|| EvalError::Invalid(format!("unknown model {name:?}")))?;
+    cfg.seed = seed;
+    if let Some(e) = epochs {
+        cfg.epochs = e;
+    }
+    let device = motion_vrnn::model::default_device();
+    let outcome = train(data, &cfg, dir, false, &device, &Quiet)?;
+    crate::chart::loss_curves(&dir.join("loss.png"), &outcome.history)
+}
+
+/// One evaluated run.
+pub struct SeedRun {
+    /// Training seed.
+    pub seed: u64,
+    /// Training seconds (the sum of its epochs').
+    pub seconds: f64,
+    /// Its evaluation.
+    pub report: EvalReport,
+}
+
+/// A measure of the results table: name, value, decimals.
+type Measure = (&'static str, fn(&EvalReport) -> f64, usize);
+
+const MEASURES: [Measure; 16] = [
+    (
+        "jerk ÷ real, generated",
+        |r| r.generated.jerk_m_s3 / r.real.jerk_m_s3,
+        2,
+    ),
+    (
+        "jerk ÷ real, reconstructed",
+        |r| r.reconstructed.jerk_m_s3 / r.real.jerk_m_s3,
+        2,
+    ),
+    (
+        "bone length std/mean, generated (%)",
+        |r| 100.0 * r.generated.bone_cv,
+        2,
+    ),
+    (
+        "foot contact ÷ real",
+        |r| r.generated.contact_share / r.real.contact_share,
+        2,
+    ),
+    (
+        "skating among contact frames ÷ real",
+        |r| r.generated.skate_in_contact / r.real.skate_in_contact,
+        2,
+    ),
+    ("APD ÷ real", |r| r.generated.apd_m / r.real.apd_m, 2),
+    (
+        "hips height ÷ real",
+        |r| r.generated.hip_height_m / r.real.hip_height_m,
+        2,
+    ),
+    (
+        "hips height, last 32 ÷ real",
+        |r| r.generated.hip_height_end_m / r.real.hip_height_end_m,
+        2,
+    ),
+    (
+        "hips speed ÷ real",
+        |r| r.generated.root_speed_m_s / r.real.root_speed_m_s,
+        2,
+    ),
+    (
+        "hips speed, last 32 ÷ real",
+        |r| r.generated.root_speed_end_m_s / r.real.root_speed_end_m_s,
+        2,
+    ),
+    ("Fréchet, generated", |r| r.frechet_generated, 1),
+    ("Fréchet, train vs test (reference)", |r| r.frechet_train, 1),
+    (
+        "Fréchet, train vs test, test-sized draws (mean)",
+        |r| mean_of(&r.frechet_train_subsets),
+        1,
+    ),
+    ("Fréchet, reconstructed", |r| r.frechet_reconstructed, 2),
+    (
+        "within-window spread ÷ real, generated",
+        |r| r.spread.generated / r.spread.real,
+        2,
+    ),
+    ("test negative ELBO per frame", |r| r.neg_elbo_per_frame, 3),
+];
+
+/// A goal: its name and whether a run meets it.
+type Goal = (&'static str, fn(&EvalReport) -> bool);
+
+/// The goals of issue 11.
+const GOALS: [Goal; 8] = [
+    ("jerk 0.67–1.5× (generated and reconstructed)", |r| {
+        let (g, c) = (
+            r.generated.jerk_m_s3 / r.real.jerk_m_s3,
+            r.reconstructed.jerk_m_s3 / r.real.jerk_m_s3,
+        );
+        (0.67..=1.5).contains(&g) && (0.67..=1.5).contains(&c)
+    }),
+    ("bone cv ≤ 1 %", |r| r.generated.bone_cv <= 0.01),
+    ("contact 0.75–1.25×", |r| {
+        within(r.generated.contact_share / r.real.contact_share)
+    }),
+    ("skating in contact ≤ 2×", |r| {
+        r.generated.skate_in_contact <= 2.0 * r.real.skate_in_contact
+    }),
+    ("APD 0.75–1.25×", |r| {
+        within(r.generated.apd_m / r.real.apd_m)
+    }),
+    ("hips height 0.75–1.25× (whole, last 32)", |r| {
+        within(r.generated.hip_height_m / r.real.hip_height_m)
+            && within(r.generated.hip_height_end_m / r.real.hip_height_end_m)
+    }),
+    ("hips speed 0.75–1.25× (whole, last 32)", |r| {
+        within(r.generated.root_speed_m_s / r.real.root_speed_m_s)
+            && within(r.generated.root_speed_end_m_s / r.real.root_speed_end_m_s)
+    }),
+    ("Fréchet ≤ train-vs-test", |r| {
+        r.frechet_generated <= r.frechet_train
+    }),
+];
+
+/// The seeds' reports averaged field by field (numbers that differ are
+/// averaged, everything else is the first report's): the goals of issue 11
+/// hold for the mean over the seeds. Every run shares the real windows, so
+/// a ratio of the mean is the mean of the ratios.
+pub fn mean_report(runs: &[SeedRun]) -> Result<EvalReport, EvalError> {
+    let values = runs
+        .iter()
+        .map(|r| serde_json::to_value(&r.report))
+        .collect::<Result<Vec<_>, _>>()?;
+    if values.is_empty() {
+        return Err(EvalError::Invalid("no runs to average".into()));
+    }
+    Ok(serde_json::from_value(average(&values))?)
+}
+
+/// JSON values of one shape averaged: real numbers that differ become their
+/// mean; objects are averaged key by key; anything else (integers, arrays,
+/// strings) is the first's.
+fn average(values: &[serde_json::Value]) -> serde_json::Value {
+    use serde_json::Value;
+    match &values[0] {
+        Value::Object(first) => Value::Object(
+            first
+                .keys()
+                .map(|k| {
+                    let each: Vec<Value> = values.iter().map(|v| v[k].clone()).collect();
+                    (k.clone(), average(&each))
+                })
+                .collect(),
+        ),
+        // Real numbers that differ: their mean. Integers (counts, epochs)
+        // stay the first's, so they still read back as integers.
+        Value::Number(_)
+            if values.iter().all(Value::is_f64) && values.iter().any(|v| v != &values[0]) =>
+        {
+            let xs: Vec<f64> = values.iter().filter_map(Value::as_f64).collect();
+            serde_json::json!(mean_of(&xs))
+        }
+        first => first.clone(),
+    }
+}
+
+fn within(x: f64) -> bool {
+    (0.75..=1.25).contains(&x)
+}
+
+/// Mean and sample standard deviation.
+pub fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len().max(1) as f64;
+    let m = mean_of(v);
+    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    (m, var.sqrt())
+}
+
+/// Training seconds of a run: the sum of its epochs' times.
+fn train_seconds(dir: &Path) -> Option<f64> {
+    let text = std::fs::read_to_string(dir.join(layout::METRICS)).ok()?;
+    let secs = text
+        .lines()
+        .filter_map(|l| serde_json::from_str::<motion_vrnn::train::EpochMetrics>(l).ok())
+        .map(|m| m.seconds)
+        .sum();
+    Some(secs)
+}
+
+/// A table's header row and rule: `first`, then one column per model.
+fn header(first: &str, table: &[(String, Vec<SeedRun>)]) -> String {
+    let mut s = format!("| {first} |");
+    for (name, _) in table {
+        let _ = write!(s, " `{name}` |");
+    }
+    s += "\n|---|";
+    for _ in table {
+        s += "---|";
+    }
+    s + "\n"
+}
+
+/// The results page (Markdown).
+pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<String, EvalError> {
+    let mut s = String::from("# Results: every model, several seeds\n\n");
+    let _ = writeln!(
+        s,
+        "Written by `cargo xtask compare --data {} --page {}` ({} seeds per model, the `standard` schedule{}). \
+         Each run is evaluated as `cargo xtask eval` does: its `best` checkpoint, the 51-odd real `test` windows, \
+         one generated motion of 128 frames per test window (sampling seed 0, at the model's temperature, each continuing the first 16 frames of its window), \
+         and the reconstructions of the test windows. Every value is the mean ± std over the seeds; \
+         measures are defined in [metrics.md](metrics.md).\n",
+        a.data.display(),
+        a.page.display(),
+        a.seeds,
+        a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default()
+    );
+    s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
+    for (name, _) in table {
+        let what = motion_vrnn::model::MODELS
+            .iter()
+            .find(|m| m.0 == name)
+            .map_or("", |m| m.1);
+        let _ = writeln!(s, "- `{name}`: {what}");
+    }
+    s += "\n";
+    s += &header("measure", table);
+    let mut rows: Vec<Measure> = MEASURES.to_vec();
+    rows.push(("training time, s", |_| f64::NAN, 0));
+    for (label, f, p) in rows {
+        let _ = write!(s, "| {label} |");
+        for (_, runs) in table {
+            let v: Vec<f64> = if label.starts_with("training time") {
+                runs.iter().map(|r| r.seconds).collect()
+            } else {
+                runs.iter().map(|r| f(&r.report)).collect()
+            };
+            let (m, sd) = mean_std(&v);
+            let _ = write!(s, " {m:.p$} ± {sd:.p$} |");
+        }
+        s += "\n";
+    }
+    s += "\nTraining time is the wall-clock time of a run's epochs as it was trained (`metrics.jsonl`), \
+          so it depends on what else the machine was doing then; `cargo xtask bench-train` compares speeds.\n";
+    s += "\n## Goals met (issue 11): on the mean over the seeds, and seed by seed\n\n";
+    s += &header("goal", table);
+    let means = table
+        .iter()
+        .map(|(name, runs)| {
+            mean_report(runs).map_err(|e| e.within(format!("averaging the reports of {name}")))
+        })
+        .collect::<Result<Vec<EvalReport>, EvalError>>()?;
+    let mark = |ok: bool| if ok { "✓" } else { "✗" };
+    for (goal, ok) in GOALS {
+        let _ = write!(s, "| {goal} |");
+        for ((_, runs), mean) in table.iter().zip(&means) {
+            let marks: Vec<String> = runs
+                .iter()
+                .map(|r| format!("{}{}", r.seed, mark(ok(&r.report))))
+                .collect();
+            let _ = write!(s, " **mean {}** · {} |", mark(ok(mean)), marks.join(" "));
+        }
+        s += "\n";
+    }
+    s += "\n## Contact sheets (seed 0: 12 generated motions of 128 frames, 5 columns from the first frame to the last, labelled in seconds)\n\n";
+    for (name, _) in table {
+        let _ = writeln!(s, "### `{name}`\n\n![{name}](images/results/{name}.png)\n");
+    }
+    Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::average;
+    use serde_json::json;
+
+    #[test]
+    fn reports_average_field_by_field() {
+        let a = json!({"epoch": 250, "split": "test", "generated": {"apd_m": 1.0}, "d": [1.0]});
+        let b = json!({"epoch": 330, "split": "test", "generated": {"apd_m": 2.0}, "d": [3.0]});
+        let c = json!({"epoch": 245, "split": "test", "generated": {"apd_m": 6.0}, "d": [5.0]});
+        // Integers stay the first's (they deserialise into usize); arrays
+        // too.
+        assert_eq!(
+            average(&[a, b, c]),
+            json!({"epoch": 250, "split": "test", "generated": {"apd_m": 3.0}, "d": [1.0]})
+        );
+    }
+}

@@ -1,0 +1,106 @@
+//! Trained runs judged: everything between a run directory written by
+//! `cargo xtask train` and what a person reads about it.
+//!
+//! - [`run`]: a run loaded with its dataset ([`run::Run`]), its windows
+//!   reconstructed and new motions generated from it.
+//! - [`report`]: the evaluation of a run ([`report::EvalReport`], written as
+//!   `eval.json`, and its Markdown `eval.md`).
+//! - [`samples`]: the files `cargo xtask sample` writes (Parquet, JSON,
+//!   BVH, contact sheet, animations, the 3-D viewer).
+//! - [`compare`]: every model trained with several seeds, evaluated, and
+//!   the results page (mean ± std over seeds, goals met).
+//! - [`chart`]: a run's loss curves as a picture.
+//!
+//! Above `motion-vrnn`, `motion-metrics` and `motion-render`; below `xtask`,
+//! which parses options, shows progress and prints what these return.
+
+pub mod chart;
+pub mod compare;
+pub mod report;
+pub mod run;
+pub mod samples;
+
+use std::path::PathBuf;
+
+/// Why a run could not be evaluated, sampled or compared.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// The run directory has no checkpoint of that name.
+    #[error("{}: no checkpoint here; train one with `cargo xtask train --out {}` (or pass --run / --checkpoint)", checkpoint.display(), run.display())]
+    NoCheckpoint {
+        /// The checkpoint directory looked for.
+        checkpoint: PathBuf,
+        /// The run directory.
+        run: PathBuf,
+    },
+    /// The dataset could not be loaded.
+    #[error("loading the dataset {} (pass --data DIR): {source}", dir.display())]
+    Data {
+        /// The dataset directory.
+        dir: PathBuf,
+        /// The cause.
+        source: motion_vrnn::data::DataError,
+    },
+    /// The dataset has no windows in a split that is needed.
+    #[error("{}: no {split} windows", dir.display())]
+    NoWindows {
+        /// The dataset directory.
+        dir: PathBuf,
+        /// The split.
+        split: String,
+    },
+    /// Loading or training a model failed.
+    #[error(transparent)]
+    Train(#[from] motion_vrnn::train::TrainError),
+    /// A tensor operation failed.
+    #[error("tensor error: {0}")]
+    Candle(#[from] candle_core::Error),
+    /// Writing or drawing an output failed.
+    #[error(transparent)]
+    Render(#[from] motion_render::RenderError),
+    /// A report could not be (de)serialised.
+    #[error("report JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    /// Creating a directory or copying a file failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// Options that cannot work.
+    #[error("{0}")]
+    Invalid(String),
+    /// A failure inside one step of a longer job, with the step named.
+    #[error("{what}: {source}")]
+    In {
+        /// The step (e.g. "training motion seed 1").
+        what: String,
+        /// The cause.
+        source: Box<EvalError>,
+    },
+}
+
+impl EvalError {
+    /// This error inside the step `what`.
+    pub fn within(self, what: impl Into<String>) -> EvalError {
+        EvalError::In {
+            what: what.into(),
+            source: Box::new(self),
+        }
+    }
+}
+
+/// `std::fs::create_dir_all` with the directory named in the error.
+pub(crate) fn create_dir(path: &std::path::Path) -> Result<(), EvalError> {
+    std::fs::create_dir_all(path).map_err(|source| EvalError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Mean of `v` (0 when empty).
+pub fn mean_of(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
+}

@@ -1,0 +1,250 @@
+//! The evaluation of a run (`eval.json`) and its Markdown (`eval.md`):
+//! real, reconstructed and generated windows of a split, measured alike
+//! with every measure of `docs/metrics.md`.
+
+use crate::run::{Run, RunSpec};
+use crate::{mean_of, EvalError};
+use mocap_ingest::features::NUM_FEATURES;
+use mocap_ingest::skeleton::Pose;
+use motion_metrics::{motion_stats, MotionStats, Options};
+use motion_vrnn::generate::{self, to_poses};
+use motion_vrnn::train::evaluate;
+use motion_vrnn::MotionModel;
+use serde::{Deserialize, Serialize};
+
+/// Where `eval` takes the real frames its generated motions continue.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Contexts {
+    /// Every window of the evaluated split, once each.
+    Split,
+    /// Random training windows (as `sample`).
+    Train,
+}
+
+impl std::str::FromStr for Contexts {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Contexts, String> {
+        match s {
+            "split" => Ok(Contexts::Split),
+            "train" => Ok(Contexts::Train),
+            _ => Err(format!("unknown contexts {s:?}: `split` or `train`")),
+        }
+    }
+}
+
+/// What `eval.json` holds.
+#[derive(Serialize, Deserialize)]
+pub struct EvalReport {
+    pub run: String,
+    pub checkpoint: String,
+    pub epoch: usize,
+    pub dataset: String,
+    pub split: String,
+    pub seed: u64,
+    /// Real frames each generated motion continues, and whose.
+    pub context: usize,
+    pub contexts: Contexts,
+    /// Sampling temperature of the generated motions (1: the prior as is).
+    #[serde(default = "one")]
+    pub temperature: f64,
+    pub windows: usize,
+    pub frames: usize,
+    /// Per frame, on the split, with the training noise convention.
+    pub neg_elbo_per_frame: f64,
+    pub recon_per_frame: f64,
+    pub kl_per_frame: f64,
+    pub real: MotionStats,
+    pub reconstructed: MotionStats,
+    pub generated: MotionStats,
+    /// Generated over real.
+    pub jerk_ratio: f64,
+    pub high_freq_ratio: f64,
+    pub frechet_generated: f64,
+    pub frechet_reconstructed: f64,
+    /// Reference: train windows against the split.
+    pub frechet_train: f64,
+    /// Reference of the generated set's sample size: train windows, as many
+    /// as the split has, against the split, for each of the disjoint subsets
+    /// of [`motion_metrics::frechet_of_subsets`].
+    #[serde(default)]
+    pub frechet_train_subsets: Vec<f64>,
+    /// Within-window spread ([`motion_metrics::mean_spread`]) of the real,
+    /// reconstructed and generated windows, in normalised units.
+    #[serde(default)]
+    pub spread: Spread,
+    pub options: Options,
+    /// What the user should know (e.g. the dataset is not the run's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// Within-window spread of each set ([`motion_metrics::mean_spread`]).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Spread {
+    pub real: f64,
+    pub reconstructed: f64,
+    pub generated: f64,
+}
+
+/// The evaluation of a run: real, reconstructed and generated windows of
+/// the split, measured alike.
+pub fn report(a: &RunSpec, contexts: Contexts) -> Result<EvalReport, EvalError> {
+    let m = Run::load(a, &["train", &a.split])?;
+    let w = m.split(&a.split)?;
+    let (recon, kl) = evaluate(&m.model.model, w, 256, a.seed, &m.device)?;
+    let t = w.length as f64;
+    let idx: Vec<usize> = (0..w.n).collect();
+    let (real, rec) = m.reconstruct(w, &idx)?;
+    let gen = match contexts {
+        Contexts::Split => generate::continue_windows(
+            &m.model.model,
+            w,
+            &idx,
+            w.length,
+            a.context,
+            a.seed,
+            &m.device,
+        )?,
+        Contexts::Train => m.sample(w.n, w.length, a.context, a.seed)?,
+    };
+    let global = |set: &[Vec<f32>]| -> Vec<Vec<Pose>> {
+        set.iter().map(|x| to_poses(x, &m.data.stats)).collect()
+    };
+    let o = Options::default();
+    let (sr, sc, sg) = (
+        motion_stats(&global(&real), &o),
+        motion_stats(&global(&rec), &o),
+        motion_stats(&global(&gen), &o),
+    );
+    let summaries = |set: &[Vec<f32>]| generate::summaries(set, NUM_FEATURES);
+    let train_windows = generate::windows_of(m.split("train")?);
+    let s_real = summaries(&real);
+    let s_train = summaries(&train_windows);
+    let (s_rec, s_gen) = (summaries(&rec), summaries(&gen));
+    let report = EvalReport {
+        run: a.run.display().to_string(),
+        checkpoint: a.checkpoint.clone(),
+        epoch: m.meta.epoch,
+        dataset: m.data.dir.display().to_string(),
+        split: a.split.clone(),
+        seed: a.seed,
+        context: a.context,
+        contexts,
+        temperature: m.model.model.config().parts.temperature.unwrap_or(1.0),
+        windows: w.n,
+        frames: w.length,
+        neg_elbo_per_frame: (recon + kl) / t,
+        recon_per_frame: recon / t,
+        kl_per_frame: kl / t,
+        jerk_ratio: sg.jerk_m_s3 / sr.jerk_m_s3,
+        high_freq_ratio: sg.high_freq_share / sr.high_freq_share,
+        frechet_generated: motion_metrics::frechet(&s_real, &s_gen),
+        frechet_reconstructed: motion_metrics::frechet(&s_real, &s_rec),
+        frechet_train: motion_metrics::frechet(&s_real, &s_train),
+        frechet_train_subsets: motion_metrics::frechet_of_subsets(&s_real, &s_train),
+        spread: Spread {
+            real: motion_metrics::mean_spread(&s_real),
+            reconstructed: motion_metrics::mean_spread(&s_rec),
+            generated: motion_metrics::mean_spread(&s_gen),
+        },
+        real: sr,
+        reconstructed: sc,
+        generated: sg,
+        options: o,
+        warnings: m.warnings.clone(),
+    };
+    Ok(report)
+}
+
+/// `eval.md`: the report as a Markdown page.
+pub fn markdown(r: &EvalReport) -> String {
+    let mut s = format!(
+        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}, temperature {}), each continuing the first {} frames of {}.\n\n",
+        r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed, r.temperature, r.context,
+        match r.contexts {
+            Contexts::Split => format!("one `{}` window (every window once)", r.split),
+            Contexts::Train => "a random training window".to_string(),
+        }
+    );
+    s += &format!(
+        "Per frame on `{}`: negative ELBO **{:.3}** = reconstruction {:.3} + KL {:.3} (normalised units).\n\n",
+        r.split, r.neg_elbo_per_frame, r.recon_per_frame, r.kl_per_frame
+    );
+    s += "| measure | real | reconstructed | generated | reconstructed / real | generated / real |\n|---|---|---|---|---|---|\n";
+    type Row = (&'static str, fn(&MotionStats) -> f64, usize);
+    let rows: [Row; 11] = [
+        ("APD, m", |m| m.apd_m, 3),
+        ("mean jerk, m/s³", |m| m.jerk_m_s3, 1),
+        ("power above 5 Hz", |m| m.high_freq_share, 4),
+        ("bone length std / mean", |m| m.bone_cv, 4),
+        (
+            "foot contact (share of foot-frames)",
+            |m| m.contact_share,
+            4,
+        ),
+        ("foot skating (share of foot-frames)", |m| m.skate_share, 4),
+        (
+            "skating among contact foot-frames",
+            |m| m.skate_in_contact,
+            4,
+        ),
+        ("hips height, m", |m| m.hip_height_m, 3),
+        ("hips height, last 32 frames, m", |m| m.hip_height_end_m, 3),
+        ("hips horizontal speed, m/s", |m| m.root_speed_m_s, 3),
+        (
+            "hips horizontal speed, last 32 frames, m/s",
+            |m| m.root_speed_end_m_s,
+            3,
+        ),
+    ];
+    let ratio = |x: f64, real: f64| {
+        if real.abs() > 1e-6 {
+            format!("{:.2}", x / real)
+        } else {
+            "n/a (real ≈ 0)".into()
+        }
+    };
+    for (name, f, p) in rows {
+        let (a, b, c) = (f(&r.real), f(&r.reconstructed), f(&r.generated));
+        s += &format!(
+            "| {name} | {a:.p$} | {b:.p$} | {c:.p$} | {} | {} |\n",
+            ratio(b, a),
+            ratio(c, a)
+        );
+    }
+    s += &format!(
+        "\nFréchet distance to the real `{}` windows (summaries: per-window mean and std of the 58 normalised features): generated **{:.2}**, reconstructed {:.2}, train windows {:.2} (reference).\n",
+        r.split, r.frechet_generated, r.frechet_reconstructed, r.frechet_train
+    );
+    let d = &r.frechet_train_subsets;
+    if !d.is_empty() {
+        let (lo, hi) = d
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        s += &format!(
+            "Train windows {} at a time (the generated set's size; {} disjoint draws): mean {:.2}, {:.2}–{:.2}.\n",
+            r.windows,
+            d.len(),
+            mean_of(d),
+            lo,
+            hi
+        );
+    }
+    let sp = &r.spread;
+    s += &format!(
+        "Within-window spread (each normalised feature's std over its window, averaged; the std half of the summaries): real {:.3}, reconstructed {:.3} ({}), generated {:.3} ({}).\n",
+        sp.real,
+        sp.reconstructed,
+        ratio(sp.reconstructed, sp.real),
+        sp.generated,
+        ratio(sp.generated, sp.real)
+    );
+    s
+}

@@ -1,0 +1,177 @@
+//! A trained run loaded with its dataset, and the windows it makes: real
+//! windows reconstructed, new motions generated from real contexts.
+
+use crate::EvalError;
+use candle_core::Device;
+use motion_render::Motion;
+use motion_vrnn::data::{Dataset, Stats, Windows};
+use motion_vrnn::generate::{self, to_poses};
+use motion_vrnn::train::{layout, load_model, CheckpointMeta, Trained};
+use motion_vrnn::MotionModel;
+use std::path::PathBuf;
+
+/// Which run, checkpoint and data; how motions are generated from it.
+#[derive(Clone, Debug)]
+pub struct RunSpec {
+    /// Run directory written by `cargo xtask train`.
+    pub run: PathBuf,
+    /// Checkpoint inside the run: `best` or `last`.
+    pub checkpoint: String,
+    /// Dataset directory (`None`: the one the run was trained on).
+    pub data: Option<PathBuf>,
+    /// Seed of the sampling noise and of the contexts drawn.
+    pub seed: u64,
+    /// Split of real windows to reconstruct and compare with.
+    pub split: String,
+    /// Real frames each generated motion continues.
+    pub context: usize,
+    /// Sampling temperature instead of the model's own.
+    pub temperature: Option<f64>,
+}
+
+impl RunSpec {
+    /// The `best` checkpoint of `run` on the `test` split, seed 0, the
+    /// standard context, the model's own temperature.
+    pub fn best(run: PathBuf, data: Option<PathBuf>) -> RunSpec {
+        RunSpec {
+            run,
+            checkpoint: layout::BEST.into(),
+            data,
+            seed: 0,
+            split: "test".into(),
+            context: generate::CONTEXT,
+            temperature: None,
+        }
+    }
+}
+
+/// Normalised windows, one `[T × 58]` vector each.
+pub type WindowSet = Vec<Vec<f32>>;
+
+/// A loaded run: model, checkpoint metadata, dataset, device.
+pub struct Run {
+    /// The model and its variables.
+    pub model: Trained,
+    /// The checkpoint's metadata (epoch, options, dataset hash).
+    pub meta: CheckpointMeta,
+    /// The dataset's splits that were asked for.
+    pub data: Dataset,
+    /// Where the model runs.
+    pub device: Device,
+    /// What the caller should tell the user (e.g. another dataset than the
+    /// run's).
+    pub warnings: Vec<String>,
+}
+
+impl Run {
+    /// Load the run of `spec` and the `splits` of its dataset.
+    pub fn load(spec: &RunSpec, splits: &[&str]) -> Result<Run, EvalError> {
+        let device = motion_vrnn::model::default_device();
+        let ck = spec.run.join(&spec.checkpoint);
+        if !ck.join(layout::META).exists() {
+            return Err(EvalError::NoCheckpoint {
+                checkpoint: ck,
+                run: spec.run.clone(),
+            });
+        }
+        let (mut model, meta) = load_model(&ck, &device)?;
+        if let Some(t) = spec.temperature {
+            model
+                .model
+                .set_temperature(Some(t))
+                .map_err(|e| EvalError::Invalid(format!("--temperature: {e}")))?;
+        }
+        let dir = spec
+            .data
+            .clone()
+            .unwrap_or_else(|| PathBuf::from(&meta.dataset));
+        let data = motion_vrnn::data::load(&dir, splits).map_err(|source| EvalError::Data {
+            dir: dir.clone(),
+            source,
+        })?;
+        let mut warnings = Vec::new();
+        if data.manifest_sha256 != meta.dataset_manifest_sha256 {
+            warnings.push(format!(
+                "{} is not the dataset this run was trained on (manifest hash differs)",
+                dir.display()
+            ));
+        }
+        Ok(Run {
+            model,
+            meta,
+            data,
+            device,
+            warnings,
+        })
+    }
+
+    /// The windows of split `name`, or an error when it has none.
+    pub fn split(&self, name: &str) -> Result<&Windows, EvalError> {
+        self.data
+            .splits
+            .get(name)
+            .filter(|w| w.n > 0)
+            .ok_or_else(|| EvalError::NoWindows {
+                dir: self.data.dir.clone(),
+                split: name.to_string(),
+            })
+    }
+
+    /// `n` motions of `frames` frames sampled from the prior, each
+    /// continuing `context` frames of a random training window
+    /// ([`generate::sample_windows`]), normalised.
+    pub fn sample(
+        &self,
+        n: usize,
+        frames: usize,
+        context: usize,
+        seed: u64,
+    ) -> Result<WindowSet, EvalError> {
+        Ok(generate::sample_windows(
+            &self.model.model,
+            self.split("train")?,
+            n,
+            frames,
+            context,
+            seed,
+            &self.device,
+        )?)
+    }
+
+    /// Real windows `idx` of `w` and their reconstructions, normalised.
+    pub fn reconstruct(
+        &self,
+        w: &Windows,
+        idx: &[usize],
+    ) -> Result<(WindowSet, WindowSet), EvalError> {
+        let per = w.length * w.features;
+        let mut real = Vec::new();
+        let mut rec = Vec::new();
+        for chunk in idx.chunks(256) {
+            let x = w.batch(chunk, &self.device)?;
+            let r = self.model.model.reconstruct(&x)?;
+            for (set, t) in [(&mut real, &x), (&mut rec, &r)] {
+                set.extend(
+                    t.flatten_all()?
+                        .to_vec1::<f32>()?
+                        .chunks(per)
+                        .map(<[f32]>::to_vec),
+                );
+            }
+        }
+        Ok((real, rec))
+    }
+
+    /// Normalised features `[T × 58]` → a named global motion.
+    pub fn motion(&self, id: String, x: &[f32]) -> Motion {
+        to_motion(id, x, &self.data.stats)
+    }
+}
+
+/// Normalised features `[T × 58]` → a named global motion.
+pub fn to_motion(id: String, x: &[f32], stats: &Stats) -> Motion {
+    Motion {
+        id,
+        poses: to_poses(x, stats),
+    }
+}

@@ -1,0 +1,173 @@
+//! Speed of a training step (forward, backward, Adam) and of sampling, on
+//! random windows, for `cargo xtask bench-train`; and PyTorch eager running
+//! the paper's model on the same machine (`xtask/py/pytorch_vrnn_step.py`).
+
+use crate::model::Config;
+use crate::optim::Adam;
+use crate::train::{feed_mask, init_model, named_vars, noise, sharded, TrainError};
+use crate::MotionModel;
+use candle_core::{Device, Tensor};
+use std::path::Path;
+
+/// Frames per window in the benchmark.
+pub const FRAMES: usize = 128;
+
+/// Seconds per training step of one model, path and batch size.
+#[derive(Clone, Debug)]
+pub struct StepTiming {
+    /// Model name.
+    pub model: String,
+    /// `fused` (the blocks) or `autograd` (their candle-op references).
+    pub path: &'static str,
+    /// Windows per step.
+    pub batch: usize,
+    /// Median and fastest step, seconds.
+    pub median: f64,
+    /// Fastest step, seconds.
+    pub min: f64,
+    /// Median time to sample 36 motions, seconds.
+    pub sample: f64,
+    /// The model's share of frames fed back (models that feed back are
+    /// timed at their full share).
+    pub self_feed: f64,
+}
+
+/// Time `steps` training steps (after 2 warm-up steps) of model `name` at
+/// each batch size, on the fused path and, with `reference`, through candle
+/// ops and autograd too.
+pub fn time_steps(
+    name: &str,
+    batches: &[usize],
+    steps: usize,
+    reference: bool,
+    device: &Device,
+) -> Result<Vec<StepTiming>, TrainError> {
+    let t = FRAMES;
+    let mut model = Config::named(name)
+        .ok_or_else(|| TrainError::Invalid(format!("unknown model {name:?}")))?;
+    // Synthetic data: the body of the skeleton part from random windows.
+    let train = crate::rng::Rng::new(2, 0).normals(64 * t * model.input);
+    let mut mean = vec![0.0; model.input];
+    mean[0] = 15.0;
+    model.fit_to(&mean, &vec![2.0; model.input], &train);
+    let paths: &[&'static str] = if reference {
+        &["fused", "autograd"]
+    } else {
+        &["fused"]
+    };
+    let mut rows = Vec::new();
+    for &path in paths {
+        for &b in batches {
+            let m = init_model(&model, 0, device)?;
+            let mut adam = Adam::new(named_vars(&m.varmap), Default::default())?;
+            let vars: Vec<_> = adam.vars().iter().map(|v| v.1.clone()).collect();
+            let x = Tensor::from_vec(
+                crate::rng::Rng::new(1, b as u64).normals(b * t * model.input),
+                (b, t, model.input),
+                device,
+            )?;
+            let mut times = Vec::new();
+            for step in 0..steps.max(1) + 2 {
+                let eps = noise(0, step as u64, t, b, model.latent, device)?;
+                let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, device)?;
+                let start = std::time::Instant::now();
+                let grads = if path == "fused" {
+                    sharded(&m.model, &x, &eps, feed.as_ref(), Some((1.0, &vars)))?.1
+                } else {
+                    crate::blocks::reference(|| {
+                        let l = m.model.losses(&x, &eps, feed.as_ref())?;
+                        ((&l.recon + &l.kl)? + &l.extra)?.backward().map(Some)
+                    })?
+                };
+                let grads = grads.ok_or_else(|| TrainError::Invalid("no gradients".into()))?;
+                adam.step(&grads)?;
+                if step >= 2 {
+                    times.push(start.elapsed().as_secs_f64());
+                }
+            }
+            times.sort_by(f64::total_cmp);
+            let mut sample = Vec::new();
+            for k in 0..5 {
+                let eps = noise(5, k, t, 36, model.latent, device)?;
+                let start = std::time::Instant::now();
+                let s = if path == "fused" {
+                    m.model.sample(&eps, None)?
+                } else {
+                    crate::blocks::reference(|| m.model.sample(&eps, None))?
+                };
+                let _ = s.sum_all()?.to_scalar::<f32>()?;
+                sample.push(start.elapsed().as_secs_f64());
+            }
+            sample.sort_by(f64::total_cmp);
+            rows.push(StepTiming {
+                model: name.to_string(),
+                path,
+                batch: b,
+                median: times[times.len() / 2],
+                min: times[0],
+                sample: sample[2],
+                self_feed: model.parts.self_feed,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// Median seconds per step of PyTorch eager on the paper's model, per batch
+/// size, from `script` (`xtask/py/pytorch_vrnn_step.py`) run by `python`
+/// with `threads` threads, in its `hoisted` form or step by step.
+pub fn pytorch_medians(
+    python: &Path,
+    script: &Path,
+    batches: &[usize],
+    steps: usize,
+    threads: usize,
+    hoisted: bool,
+) -> Result<Vec<(usize, f64)>, TrainError> {
+    let mut cmd = std::process::Command::new(python);
+    cmd.arg(script).arg("--batch");
+    cmd.args(batches.iter().map(usize::to_string));
+    cmd.args(["--steps", &steps.to_string()]);
+    cmd.args(["--threads", &threads.to_string()]);
+    if hoisted {
+        cmd.arg("--hoisted");
+    }
+    let fail = |message: String| TrainError::Io {
+        path: script.to_path_buf(),
+        message,
+    };
+    let out = cmd
+        .output()
+        .map_err(|e| fail(format!("running it with {}: {e}", python.display())))?;
+    if !out.status.success() {
+        return Err(fail(format!(
+            "{} failed (is PyTorch installed for it?):\n{}",
+            python.display(),
+            String::from_utf8_lossy(&out.stderr)
+        )));
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let medians: Vec<(usize, f64)> = text
+        .lines()
+        .filter_map(|l| {
+            let mut w = l.split_whitespace();
+            Some((w.next()?.parse().ok()?, w.next()?.parse().ok()?))
+        })
+        .collect();
+    if medians.len() != batches.len() {
+        return Err(fail(format!("unexpected output:\n{text}")));
+    }
+    Ok(medians)
+}
+
+/// The speed-up over PyTorch eager a model should reach (issue 11): 1.5× at
+/// batch 1,600 and 5× at batch 64; a model that trains on its own
+/// predictions (`self_feed > 0`) 1× and 3×.
+pub fn speedup_bound(self_feed: f64, batch: usize) -> f64 {
+    match (self_feed > 0.0, batch >= 1600) {
+        (false, true) => 1.5,
+        (false, false) => 5.0,
+        (true, true) => 1.0,
+        (true, false) => 3.0,
+    }
+}

@@ -1,0 +1,171 @@
+//! Overrides of a [`TrainConfig`], one per `cargo xtask train` option: a
+//! preset is the starting point, and every option given replaces its value.
+
+use crate::train::{Select, TrainConfig};
+
+/// How the `best` checkpoint is chosen.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SelectBy {
+    /// The epoch whose generated motion is closest to real motion.
+    Generation,
+    /// The epoch with the lowest validation loss.
+    Loss,
+}
+
+impl std::str::FromStr for SelectBy {
+    type Err = String;
+    fn from_str(s: &str) -> Result<SelectBy, String> {
+        match s {
+            "generation" => Ok(SelectBy::Generation),
+            "loss" => Ok(SelectBy::Loss),
+            _ => Err(format!("unknown choice {s:?}: `generation` or `loss`")),
+        }
+    }
+}
+
+/// Values that replace a preset's; `None` keeps it. Where an option's
+/// "off" value is given (e.g. a KL weight of 1, a clip of 0) the
+/// configuration stores "none", as the presets do.
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    /// The model's latent filter pole (0: off).
+    pub latent_filter: Option<f64>,
+    /// The model's output filter pole (0: off).
+    pub output_filter: Option<f64>,
+    /// Weight of the foot-slide penalty (0: off).
+    pub feet_weight: Option<f64>,
+    /// KL weight after warm-up (1: the ELBO).
+    pub kl_weight: Option<f64>,
+    /// Largest share of frames fed back in training (0: off).
+    pub self_feed: Option<f64>,
+    /// Rounds of feeding back (1: one step deep).
+    pub feed_rounds: Option<usize>,
+    /// Sampling temperature (1: the prior as trained).
+    pub temperature: Option<f64>,
+    /// Epochs.
+    pub epochs: Option<usize>,
+    /// Windows per step.
+    pub batch: Option<usize>,
+    /// Adam learning rate.
+    pub lr: Option<f64>,
+    /// Learning rate of the last epoch as a share of `lr` (1: constant).
+    pub lr_final: Option<f64>,
+    /// Seed of initialisation, shuffling and noise.
+    pub seed: Option<u64>,
+    /// KL warm-up epochs (0: off).
+    pub kl_warmup: Option<usize>,
+    /// Gradient-norm clip (0: off).
+    pub clip: Option<f64>,
+    /// Early-stopping patience (0: off).
+    pub early_stopping: Option<usize>,
+    /// How `best` is chosen.
+    pub select: Option<SelectBy>,
+    /// Epochs between two judgements of generated motion.
+    pub judge_every: Option<usize>,
+}
+
+impl Overrides {
+    /// `cfg` with every given value in place of its own.
+    pub fn apply(&self, cfg: &mut TrainConfig) {
+        let parts = &mut cfg.model.parts;
+        if let Some(v) = self.latent_filter {
+            parts.latent_filter = v;
+        }
+        if let Some(v) = self.output_filter {
+            parts.output_filter = v;
+        }
+        if let Some(v) = self.feet_weight {
+            parts.feet = v;
+        }
+        if let Some(v) = self.self_feed {
+            parts.self_feed = v;
+        }
+        if let Some(v) = self.kl_weight {
+            parts.kl_weight = (v != 1.0).then_some(v);
+        }
+        if let Some(v) = self.feed_rounds {
+            parts.feed_rounds = (v != 1).then_some(v);
+        }
+        if let Some(v) = self.temperature {
+            parts.temperature = (v != 1.0).then_some(v);
+        }
+        if let Some(v) = self.epochs {
+            cfg.epochs = v;
+        }
+        if let Some(v) = self.batch {
+            cfg.batch = v;
+        }
+        if let Some(v) = self.lr {
+            cfg.adam.lr = v;
+        }
+        if let Some(v) = self.lr_final {
+            cfg.lr_final = (v != 1.0).then_some(v);
+        }
+        if let Some(v) = self.seed {
+            cfg.seed = v;
+        }
+        if let Some(v) = self.kl_warmup {
+            cfg.kl_warmup_epochs = v;
+        }
+        if let Some(v) = self.clip {
+            cfg.clip_grad_norm = (v > 0.0).then_some(v);
+        }
+        if let Some(v) = self.early_stopping {
+            cfg.early_stopping = (v > 0).then_some(v);
+        }
+        let every = match cfg.select {
+            Select::Generation { every } => every,
+            Select::Loss => 5,
+        };
+        cfg.select = match (self.select, self.judge_every) {
+            (Some(SelectBy::Loss), _) => Select::Loss,
+            (Some(SelectBy::Generation), n) => Select::Generation {
+                every: n.unwrap_or(every),
+            },
+            (None, Some(n)) if !cfg.select.is_loss() => Select::Generation { every: n },
+            (None, _) => cfg.select,
+        };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn off_values_become_none_and_the_judge_keeps_its_period() {
+        let mut cfg = TrainConfig::standard();
+        Overrides {
+            kl_weight: Some(1.0),
+            clip: Some(0.0),
+            early_stopping: Some(0),
+            lr_final: Some(1.0),
+            judge_every: Some(7),
+            seed: Some(3),
+            ..Default::default()
+        }
+        .apply(&mut cfg);
+        assert_eq!(cfg.model.parts.kl_weight, None);
+        assert_eq!(cfg.clip_grad_norm, None);
+        assert_eq!(cfg.early_stopping, None);
+        assert_eq!(cfg.lr_final, None);
+        assert_eq!(cfg.select, Select::Generation { every: 7 });
+        assert_eq!(cfg.seed, 3);
+        // The paper preset chooses by loss; --judge-every alone keeps that.
+        let mut paper = TrainConfig::paper();
+        Overrides {
+            judge_every: Some(7),
+            ..Default::default()
+        }
+        .apply(&mut paper);
+        assert_eq!(paper.select, Select::Loss);
+        Overrides {
+            select: Some(SelectBy::Generation),
+            ..Default::default()
+        }
+        .apply(&mut paper);
+        assert_eq!(paper.select, Select::Generation { every: 5 });
+        assert_eq!("loss".parse::<SelectBy>(), Ok(SelectBy::Loss));
+        assert!("best".parse::<SelectBy>().is_err());
+    }
+}
