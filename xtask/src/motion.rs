@@ -3,6 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use motion_eval::horizon::HorizonOptions;
 use motion_eval::report::{markdown, report, Contexts};
 use motion_eval::run::RunSpec;
 use motion_eval::samples::{write_samples, SampleOptions};
@@ -69,6 +70,13 @@ pub struct EvalArgs {
     /// set does), `train` continues random training windows as `sample` does.
     #[arg(long, default_value = "split")]
     contexts: Contexts,
+    /// Also roll motions out for this many seconds and measure every
+    /// window-long stretch against all real windows (0: off).
+    #[arg(long, default_value_t = 60.0)]
+    horizon: f64,
+    /// Motions rolled out for --horizon.
+    #[arg(long, default_value_t = 256)]
+    horizon_motions: usize,
     /// Output directory for eval.json and eval.md (default: RUN/eval).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -296,7 +304,11 @@ pub fn eval(a: EvalArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| a.run.run.join("eval"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let started = std::time::Instant::now();
-    let report = report(&a.run.spec(), a.contexts)?;
+    let horizon = (a.horizon > 0.0).then_some(HorizonOptions {
+        seconds: a.horizon,
+        motions: a.horizon_motions,
+    });
+    let report = report(&a.run.spec(), a.contexts, horizon)?;
     for warning in &report.warnings {
         eprintln!("warning: {warning}");
     }

@@ -1,24 +1,13 @@
 //! `cargo xtask train`.
 
 use anyhow::{Context, Result};
-use clap::{Args, ValueEnum};
+use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use motion_vrnn::bench::{pytorch_medians, speedup_bound, time_steps, StepTiming};
 use motion_vrnn::model::{Config, MODELS};
-use motion_vrnn::options::{Overrides, SelectBy};
-use motion_vrnn::train::{layout, train, EpochMetrics, TrainConfig, TrainProgress};
+use motion_vrnn::options::{Overrides, Preset, SelectBy};
+use motion_vrnn::train::{layout, train, EpochMetrics, TrainProgress};
 use std::path::{Path, PathBuf};
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum Preset {
-    /// The default schedule: batch 64, 400 epochs, KL warm-up 20, clipping
-    /// 100, early stopping after 60 epochs without improvement.
-    Standard,
-    /// A quick look: batch 64, 30 epochs, KL warm-up 5, clipping 100, early stopping 10.
-    Quick,
-    /// Exactly the paper: Adam 1e-3, batch 1,600, 2,000 epochs, nothing else.
-    Paper,
-}
 
 #[derive(Args)]
 pub struct TrainArgs {
@@ -56,7 +45,10 @@ pub struct TrainArgs {
     #[arg(long)]
     pub temperature: Option<f64>,
     /// Starting point for every option below.
-    #[arg(long, value_enum, default_value_t = Preset::Standard)]
+    /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
+    /// stopping 60; `quick`: 30 epochs, warm-up 5, early stopping 10; `paper`:
+    /// exactly the paper (Adam 1e-3, batch 1,600, 2,000 epochs, nothing else).
+    #[arg(long, default_value = "standard")]
     pub preset: Preset,
     /// Epochs.
     #[arg(long)]
@@ -178,11 +170,7 @@ impl TrainArgs {
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let mut cfg = match a.preset {
-        Preset::Standard => TrainConfig::standard(),
-        Preset::Quick => TrainConfig::quick(),
-        Preset::Paper => TrainConfig::paper(),
-    };
+    let mut cfg = a.preset.config();
     cfg.model = Config::named(&a.model).context("unknown model")?;
     a.overrides().apply(&mut cfg);
     let device = motion_vrnn::model::default_device();

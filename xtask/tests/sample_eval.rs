@@ -291,7 +291,7 @@ fn sample_and_eval_write_what_they_promise() {
 /// options): its `eval.json`.
 fn eval_val(run: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
     let o = xtask()
-        .args(["eval", "--split", "val"])
+        .args(["eval", "--split", "val", "--horizon", "0"])
         .args(extra)
         .arg("--run")
         .arg(run)
@@ -332,7 +332,10 @@ fn every_model_trains_samples_and_evaluates() {
         assert_eq!(config.name(), Some(name), "{name}: checkpoint");
         for cmd in [
             vec!["sample", "--n", "2", "--frames", "24", "--split", "val"],
-            vec!["eval", "--split", "val"],
+            vec!["eval", "--split", "val"]
+                .into_iter()
+                .chain(["--horizon", "8", "--horizon-motions", "8"])
+                .collect(),
         ] {
             let o = xtask().args(&cmd).arg("--run").arg(&run).output().unwrap();
             assert!(
@@ -347,6 +350,23 @@ fn every_model_trains_samples_and_evaluates() {
                 .unwrap();
         let cv = v["generated"]["bone_cv"].as_f64().unwrap();
         assert!(cv.is_finite(), "{name}");
+        // The long horizon: 8 s of 32-frame windows is 7 stretches, each of
+        // the 8 motions, against every real window (train and val here).
+        let h = &v["horizon"];
+        let stretches = h["stretches"].as_array().unwrap();
+        assert_eq!(stretches.len(), 7, "{name}");
+        assert!(stretches.iter().all(|s| s["generated"]["motions"] == 8));
+        let second = stretches[1]["start_s"].as_f64().unwrap();
+        assert!((second - 32.0 / 30.0).abs() < 1e-9, "{second}");
+        assert_eq!(h["real_spread"].as_array().unwrap().len(), 9);
+        assert!(h["real_windows"].as_u64().unwrap() >= 2);
+        if config.parts.skeleton {
+            let last = stretches[6]["generated"]["bone_cv"].as_f64().unwrap();
+            assert!(
+                last < 1e-4,
+                "{name}: bones stretch late in the rollout: {last}"
+            );
+        }
         if config.parts.skeleton {
             assert!(cv < 1e-4, "{name}: bone cv {cv}");
         } else {

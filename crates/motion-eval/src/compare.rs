@@ -64,7 +64,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
             }
             let seconds = train_seconds(&dir).unwrap_or(started.elapsed().as_secs_f64());
             let spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
-            let report = report(&spec, Contexts::Split)
+            let report = report(&spec, Contexts::Split, None)
                 .map_err(|e| e.within(format!("evaluating {}", dir.display())))?;
             log(&format!(
                 "{name} seed {seed}: jerk {:.2}x, bone cv {:.2} %, APD {:.2}x, Fréchet {:.1}",

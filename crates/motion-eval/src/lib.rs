@@ -5,6 +5,8 @@
 //!   reconstructed and new motions generated from it.
 //! - [`report`]: the evaluation of a run ([`report::EvalReport`], written as
 //!   `eval.json`, and its Markdown `eval.md`).
+//! - [`horizon`]: motions rolled out for a minute, measured stretch by
+//!   stretch against every real window.
 //! - [`samples`]: the files `cargo xtask sample` writes (Parquet, JSON,
 //!   BVH, contact sheet, animations, the 3-D viewer).
 //! - [`compare`]: every model trained with several seeds, evaluated, and
@@ -16,6 +18,7 @@
 
 pub mod chart;
 pub mod compare;
+pub mod horizon;
 pub mod report;
 pub mod run;
 pub mod samples;

@@ -2,6 +2,7 @@
 //! real, reconstructed and generated windows of a split, measured alike
 //! with every measure of `docs/metrics.md`.
 
+use crate::horizon::{Horizon, HorizonOptions};
 use crate::run::{Run, RunSpec};
 use crate::{mean_of, EvalError};
 use mocap_ingest::features::NUM_FEATURES;
@@ -74,6 +75,9 @@ pub struct EvalReport {
     #[serde(default)]
     pub spread: Spread,
     pub options: Options,
+    /// Motions rolled out for a minute, stretch by stretch (`eval --horizon`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub horizon: Option<Horizon>,
     /// What the user should know (e.g. the dataset is not the run's).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
@@ -93,7 +97,12 @@ pub struct Spread {
 
 /// The evaluation of a run: real, reconstructed and generated windows of
 /// the split, measured alike.
-pub fn report(a: &RunSpec, contexts: Contexts) -> Result<EvalReport, EvalError> {
+/// With `horizon`, also the long-horizon table ([`crate::horizon`]).
+pub fn report(
+    a: &RunSpec,
+    contexts: Contexts,
+    horizon: Option<HorizonOptions>,
+) -> Result<EvalReport, EvalError> {
     let m = Run::load(a, &["train", &a.split])?;
     let w = m.split(&a.split)?;
     let (recon, kl) = evaluate(&m.model.model, w, 256, a.seed, &m.device)?;
@@ -157,6 +166,7 @@ pub fn report(a: &RunSpec, contexts: Contexts) -> Result<EvalReport, EvalError> 
         generated: sg,
         options: o,
         warnings: m.warnings.clone(),
+        horizon: horizon.map(|o| crate::horizon::horizon(a, o)).transpose()?,
     };
     Ok(report)
 }
@@ -246,5 +256,8 @@ pub fn markdown(r: &EvalReport) -> String {
         sp.generated,
         ratio(sp.generated, sp.real)
     );
+    if let Some(h) = &r.horizon {
+        s += &crate::horizon::markdown(h);
+    }
     s
 }

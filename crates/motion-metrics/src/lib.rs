@@ -73,6 +73,10 @@ pub struct MotionStats {
     /// Mean horizontal hips speed over the last [`TAIL`] frames (m/s).
     #[serde(default)]
     pub root_speed_end_m_s: f64,
+    /// Turning rate: mean absolute change of the facing direction, degrees
+    /// per second ([`turning_rate`]).
+    #[serde(default)]
+    pub turning_deg_s: f64,
 }
 
 /// Frames at the end of a motion over which drift is measured.
@@ -266,7 +270,33 @@ pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
         hip_height_end_m: mean(&|m| hip_height(m, m.len().saturating_sub(TAIL))),
         root_speed_m_s: mean(&|m| root_speed(m, 0, o.fps)),
         root_speed_end_m_s: mean(&|m| root_speed(m, m.len().saturating_sub(TAIL), o.fps)),
+        turning_deg_s: mean(&|m| turning_rate(m, o.fps)),
     }
+}
+
+/// Turning rate of a motion: the mean absolute change, from frame to frame,
+/// of its facing direction (the local frame's +z of `docs/features.md`,
+/// from the hips and both shoulders), in degrees per second. Frames whose
+/// facing is undefined are left out with their neighbours' steps.
+pub fn turning_rate(m: &[Pose], fps: f64) -> f64 {
+    let facing: Vec<Option<[f64; 3]>> = m
+        .iter()
+        .map(|p| mocap_ingest::features::LocalFrame::of(p, 0.0).map(|f| f.ez))
+        .collect();
+    let steps: Vec<f64> = facing
+        .windows(2)
+        .filter_map(|w| {
+            let (a, b) = (w[0]?, w[1]?);
+            // Signed angle from a to b about +y, in the floor plane.
+            let cross = a[2] * b[0] - a[0] * b[2];
+            let dot = a[0] * b[0] + a[2] * b[2];
+            Some(cross.atan2(dot).abs())
+        })
+        .collect();
+    if steps.is_empty() {
+        return 0.0;
+    }
+    (steps.iter().sum::<f64>() / steps.len() as f64 * fps).to_degrees()
 }
 
 /// The per-window summary the Fréchet distance compares: each feature's mean
@@ -499,6 +529,38 @@ mod tests {
             *j = [x, 1.0 + k as f64, 0.0];
         }
         vec![p; 8]
+    }
+
+    /// Hips at 9, shoulders 3 units either side and 5 above, turned by
+    /// `yaw` radians about +y.
+    fn facing(yaw: f64) -> Pose {
+        use mocap_ingest::skeleton::{HIPS, LEFT_ARM, RIGHT_ARM};
+        let mut p: Pose = [[0.0, 9.0, 0.0]; NUM_JOINTS];
+        let (c, s) = (yaw.cos(), yaw.sin());
+        // Local +x to the left shoulder when facing +z.
+        p[HIPS] = [0.0, 9.0, 0.0];
+        p[LEFT_ARM] = [3.0 * c, 14.0, -3.0 * s];
+        p[RIGHT_ARM] = [-3.0 * c, 14.0, 3.0 * s];
+        p
+    }
+
+    #[test]
+    fn turning_rate_of_a_steady_turn_and_a_swing() {
+        // 3° a frame at 30 fps: 90°/s, either way.
+        let left: Vec<Pose> = (0..31)
+            .map(|t| facing((3.0 * t as f64).to_radians()))
+            .collect();
+        assert!((turning_rate(&left, 30.0) - 90.0).abs() < 1e-9);
+        let right: Vec<Pose> = (0..31)
+            .map(|t| facing((-3.0 * t as f64).to_radians()))
+            .collect();
+        assert!((turning_rate(&right, 30.0) - 90.0).abs() < 1e-9);
+        // Across ±180°: the step is 10°, not 350°.
+        let wrap = [facing(175f64.to_radians()), facing(-175f64.to_radians())];
+        assert!((turning_rate(&wrap, 30.0) - 300.0).abs() < 1e-9);
+        // Standing still, and too short to turn.
+        assert_eq!(turning_rate(&vec![facing(0.5); 10], 30.0), 0.0);
+        assert_eq!(turning_rate(&left[..1], 30.0), 0.0);
     }
 
     #[test]

@@ -3,6 +3,42 @@
 
 use crate::train::{Select, TrainConfig};
 
+/// The starting point of a training configuration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Preset {
+    /// [`TrainConfig::standard`], the default.
+    Standard,
+    /// [`TrainConfig::quick`], a quick look.
+    Quick,
+    /// [`TrainConfig::paper`], exactly the paper.
+    Paper,
+}
+
+impl Preset {
+    /// The preset's configuration.
+    pub fn config(self) -> TrainConfig {
+        match self {
+            Preset::Standard => TrainConfig::standard(),
+            Preset::Quick => TrainConfig::quick(),
+            Preset::Paper => TrainConfig::paper(),
+        }
+    }
+}
+
+impl std::str::FromStr for Preset {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Preset, String> {
+        match s {
+            "standard" => Ok(Preset::Standard),
+            "quick" => Ok(Preset::Quick),
+            "paper" => Ok(Preset::Paper),
+            _ => Err(format!(
+                "unknown preset {s:?}: `standard`, `quick` or `paper`"
+            )),
+        }
+    }
+}
+
 /// How the `best` checkpoint is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SelectBy {
@@ -167,5 +203,10 @@ mod tests {
         assert_eq!(paper.select, Select::Generation { every: 5 });
         assert_eq!("loss".parse::<SelectBy>(), Ok(SelectBy::Loss));
         assert!("best".parse::<SelectBy>().is_err());
+        assert_eq!(
+            "paper".parse::<Preset>().map(Preset::config),
+            Ok(TrainConfig::paper())
+        );
+        assert!("fast".parse::<Preset>().is_err());
     }
 }

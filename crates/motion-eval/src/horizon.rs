@@ -1,0 +1,219 @@
+//! The long horizon: motions rolled out for a minute from training-window
+//! contexts, cut into window-long stretches, each re-based to its own start
+//! (position and facing: the features are local, so a stretch's poses start
+//! at the origin facing +z as real windows do) and measured against every
+//! real window of the dataset, beside the spread of real draws of the same
+//! size (`docs/metrics.md`, "Long horizon").
+
+use crate::run::{Run, RunSpec};
+use crate::EvalError;
+use mocap_ingest::features::NUM_FEATURES;
+use mocap_ingest::skeleton::Pose;
+use motion_metrics::{motion_stats, MotionStats, Options};
+use motion_vrnn::generate::{self, to_poses};
+use serde::{Deserialize, Serialize};
+
+/// How long and how many.
+#[derive(Clone, Copy, Debug)]
+pub struct HorizonOptions {
+    /// Seconds each motion is rolled out for (30 fps).
+    pub seconds: f64,
+    /// Motions generated.
+    pub motions: usize,
+}
+
+/// Draws of real windows that give the real-vs-real spread.
+pub const REAL_DRAWS: usize = 8;
+
+/// A measure of the table: name and value (a ratio to real is taken of it).
+pub type Measure = (&'static str, fn(&MotionStats) -> f64);
+
+/// The measures of the long-horizon table, each compared as generated ÷ real.
+pub const MEASURES: [Measure; 9] = [
+    ("jerk", |m| m.jerk_m_s3),
+    ("contact", |m| m.contact_share),
+    ("skating in contact", |m| m.skate_in_contact),
+    ("APD", |m| m.apd_m),
+    ("hips height", |m| m.hip_height_m),
+    ("hips height, last 32", |m| m.hip_height_end_m),
+    ("hips speed", |m| m.root_speed_m_s),
+    ("hips speed, last 32", |m| m.root_speed_end_m_s),
+    ("turning", |m| m.turning_deg_s),
+];
+
+/// One stretch of the rolled-out motions.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Stretch {
+    /// Its first frame, seconds from the motions' start.
+    pub start_s: f64,
+    /// Every measure over the stretch of every motion.
+    pub generated: MotionStats,
+    /// Fréchet distance of the stretches to the evaluated split's windows.
+    pub frechet: f64,
+}
+
+/// Range of `generated ÷ real` that real windows themselves give.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Spread {
+    /// The measure ([`MEASURES`]).
+    pub measure: String,
+    /// Smallest and largest ratio over [`REAL_DRAWS`] draws.
+    pub lo: f64,
+    /// Largest ratio.
+    pub hi: f64,
+}
+
+/// The long-horizon evaluation (`eval.json`'s `horizon`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Horizon {
+    /// Seconds rolled out.
+    pub seconds: f64,
+    /// Motions generated (each continuing a random training window).
+    pub motions: usize,
+    /// Frames per stretch (the dataset's window length).
+    pub frames: usize,
+    /// Real windows of every split.
+    pub real_windows: usize,
+    /// Every measure over all real windows.
+    pub real: MotionStats,
+    /// Per measure, the ratios of draws of as many real windows as there
+    /// are motions (without replacement) to all real windows.
+    pub real_spread: Vec<Spread>,
+    /// Fréchet distance of the training windows to the test windows (the
+    /// reference, as in the 4-second evaluation).
+    pub frechet_reference: f64,
+    /// The stretches, in order.
+    pub stretches: Vec<Stretch>,
+}
+
+/// Roll out `o.motions` motions of the run of `spec` for `o.seconds` and
+/// measure every stretch (see the module documentation).
+pub fn horizon(spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, EvalError> {
+    let m = Run::load(spec, &["train", "val", "test"])?;
+    let train = m.split("train")?;
+    let test = m.split(&spec.split)?;
+    let len = train.length;
+    let fps = Options::default().fps;
+    let stretches = ((o.seconds * fps).round() as usize) / len.max(1);
+    if stretches == 0 || o.motions == 0 {
+        return Err(EvalError::Invalid(format!(
+            "--horizon {} s is shorter than one {len}-frame window, or no motions",
+            o.seconds
+        )));
+    }
+    let gen = m.sample(o.motions, stretches * len, spec.context, spec.seed)?;
+    let opts = Options::default();
+    let test_summaries = generate::summaries(&generate::windows_of(test), NUM_FEATURES);
+    let per = len * NUM_FEATURES;
+    let mut out = Vec::new();
+    for k in 0..stretches {
+        let windows: Vec<Vec<f32>> = gen
+            .iter()
+            .map(|x| x[k * per..(k + 1) * per].to_vec())
+            .collect();
+        let poses: Vec<Vec<Pose>> = windows.iter().map(|x| to_poses(x, &m.data.stats)).collect();
+        out.push(Stretch {
+            start_s: (k * len) as f64 / fps,
+            generated: motion_stats(&poses, &opts),
+            frechet: motion_metrics::frechet(
+                &test_summaries,
+                &generate::summaries(&windows, NUM_FEATURES),
+            ),
+        });
+    }
+    // Every real window of the dataset, and draws of the generated set's size.
+    let mut real: Vec<Vec<Pose>> = Vec::new();
+    for split in ["train", "val", "test"] {
+        if let Some(w) = m.data.splits.get(split) {
+            real.extend(
+                generate::windows_of(w)
+                    .iter()
+                    .map(|x| to_poses(x, &m.data.stats)),
+            );
+        }
+    }
+    let all = motion_stats(&real, &opts);
+    let draw = o.motions.min(real.len() / 2).max(1);
+    let draws: Vec<MotionStats> = (0..REAL_DRAWS as u64)
+        .map(|d| {
+            let perm = motion_vrnn::rng::Rng::new(spec.seed, 0xD4A7 + d).permutation(real.len());
+            let pick: Vec<Vec<Pose>> = perm[..draw].iter().map(|&i| real[i].clone()).collect();
+            motion_stats(&pick, &opts)
+        })
+        .collect();
+    let real_spread = MEASURES
+        .iter()
+        .map(|(name, f)| {
+            let ratios: Vec<f64> = draws.iter().map(|d| f(d) / f(&all)).collect();
+            Spread {
+                measure: name.to_string(),
+                lo: ratios.iter().copied().fold(f64::INFINITY, f64::min),
+                hi: ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            }
+        })
+        .collect();
+    Ok(Horizon {
+        seconds: (stretches * len) as f64 / fps,
+        motions: o.motions,
+        frames: len,
+        real_windows: real.len(),
+        real: all,
+        real_spread,
+        frechet_reference: motion_metrics::frechet(
+            &test_summaries,
+            &generate::summaries(&generate::windows_of(train), NUM_FEATURES),
+        ),
+        stretches: out,
+    })
+}
+
+/// The long-horizon table in Markdown: one row per stretch, each measure as
+/// generated ÷ all real windows, the real-vs-real range in the header.
+pub fn markdown(h: &Horizon) -> String {
+    let mut s = format!(
+        "\n## Long horizon: {} motions rolled out for {:.0} s from training contexts\n\n\
+         Each {}-frame stretch re-based to its own start and measured against all {} real windows \
+         of the dataset (generated ÷ real); under each measure, the range of the same ratio for \
+         {REAL_DRAWS} draws of {} real windows. Fréchet: against the evaluated split \
+         (train-vs-split reference {:.1}). Bone cv in %.\n\n| stretch |",
+        h.motions,
+        h.seconds,
+        h.frames,
+        h.real_windows,
+        h.motions.min(h.real_windows / 2),
+        h.frechet_reference
+    );
+    for (name, _) in MEASURES {
+        s += &format!(" {name} |");
+    }
+    s += " bone cv | Fréchet |\n|---|";
+    for _ in 0..MEASURES.len() + 2 {
+        s += "---|";
+    }
+    s += "\n| real vs real |";
+    for sp in &h.real_spread {
+        s += &format!(" {:.2}–{:.2} |", sp.lo, sp.hi);
+    }
+    s += " | |\n";
+    for st in &h.stretches {
+        s += &format!(
+            "| {:.1}–{:.1} s |",
+            st.start_s,
+            st.start_s + h.frames as f64 / 30.0
+        );
+        for (_, f) in MEASURES {
+            let real = f(&h.real);
+            if real.abs() > 1e-12 {
+                s += &format!(" {:.2} |", f(&st.generated) / real);
+            } else {
+                s += " n/a |";
+            }
+        }
+        s += &format!(
+            " {:.2} | {:.1} |\n",
+            100.0 * st.generated.bone_cv,
+            st.frechet
+        );
+    }
+    s
+}
