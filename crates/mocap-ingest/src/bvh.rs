@@ -671,11 +671,20 @@ fn parse_motion(
     let mut values = Vec::with_capacity((frames * channels).min(bytes.len() / 2));
     let mut found = 0usize;
     let mut last_line = n;
-    let cut = |found: usize, line: usize| Truncation {
-        expected: frames,
-        found,
-        line,
-        leading: 0,
+    // The table of the `found` complete frames, the file cut at `line`.
+    let cut = |mut values: Vec<f64>, found: usize, line: usize| {
+        values.truncate(found * channels);
+        Ok(MotionTable {
+            values,
+            frames: found,
+            frame_time,
+            truncation: Some(Truncation {
+                expected: frames,
+                found,
+                line,
+                leading: 0,
+            }),
+        })
     };
     while let Some((n, line)) = lines.next() {
         last_line = n;
@@ -690,13 +699,7 @@ fn parse_motion(
         if let Err(t) = parsed {
             // A number cut by the end of the file ends the motion there.
             if values.len() - before < channels && is_number_prefix(t) && ends_at_end(bytes, t) {
-                values.truncate(found * channels);
-                return Ok(MotionTable {
-                    values,
-                    frames: found,
-                    frame_time,
-                    truncation: Some(cut(found, n)),
-                });
+                return cut(values, found, n);
             }
             return Err(ErrorKind::NonNumeric {
                 line: n,
@@ -707,13 +710,7 @@ fn parse_motion(
         if count != channels {
             // A short final line is a truncated file, not a layout error.
             if count < channels && lines.next().is_none() {
-                values.truncate(found * channels);
-                return Ok(MotionTable {
-                    values,
-                    frames: found,
-                    frame_time,
-                    truncation: Some(cut(found, n)),
-                });
+                return cut(values, found, n);
             }
             return Err(ErrorKind::ChannelCount {
                 line: n,
@@ -729,11 +726,14 @@ fn parse_motion(
             ));
         }
     }
+    if found < frames {
+        return cut(values, found, last_line);
+    }
     Ok(MotionTable {
         values,
         frames: found,
         frame_time,
-        truncation: (found < frames).then(|| cut(found, last_line)),
+        truncation: None,
     })
 }
 

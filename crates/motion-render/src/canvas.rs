@@ -349,6 +349,16 @@ pub fn save_apng(frames: &[Canvas], fps: u16, path: &Path) -> Result<(), RenderE
     })
 }
 
+/// Width, height and pixels of a PNG file (tests only).
+#[cfg(test)]
+pub(crate) fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut r = dec.read_info().unwrap();
+    let mut buf = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut buf).unwrap();
+    (info.width, info.height, buf)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

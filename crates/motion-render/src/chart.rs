@@ -253,14 +253,7 @@ pub fn histogram(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
-        let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
-        let mut r = dec.read_info().unwrap();
-        let mut buf = vec![0; r.output_buffer_size().unwrap()];
-        let info = r.next_frame(&mut buf).unwrap();
-        (info.width, info.height, buf)
-    }
+    use crate::canvas::read_png;
 
     #[test]
     fn tick_labels_are_short() {

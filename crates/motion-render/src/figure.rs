@@ -185,6 +185,7 @@ pub fn animation(path: &Path, motions: &[&Motion]) -> Result<(), RenderError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::canvas::read_png;
 
     /// A person of about 1.7 m (30 units) standing, facing +z, `dx` along x.
     fn standing(dx: f64) -> Pose {
@@ -217,14 +218,6 @@ mod tests {
             id: id.into(),
             poses: (0..frames).map(|f| standing(f as f64 * 0.5)).collect(),
         }
-    }
-
-    fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
-        let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
-        let mut r = dec.read_info().unwrap();
-        let mut buf = vec![0; r.output_buffer_size().unwrap()];
-        let info = r.next_frame(&mut buf).unwrap();
-        (info.width, info.height, buf)
     }
 
     #[test]
