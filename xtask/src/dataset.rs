@@ -5,6 +5,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use mocap_ingest::bench::BenchRun;
+use mocap_ingest::category::read_user_categories;
 use mocap_ingest::dataset::{
     build_dataset, parse_exclude_list, DatasetOptions, Encoding, Progress, SplitBy,
 };
@@ -68,6 +69,9 @@ pub struct DatasetArgs {
     /// flagged.txt works as is). Recorded in the manifest.
     #[arg(long)]
     exclude: Option<PathBuf>,
+    /// File of `take,category` lines for takes that are not CMU trials (or to override). Recorded in the manifest.
+    #[arg(long)]
+    categories: Option<PathBuf>,
     /// Skip files that end inside their motion (reason `truncated`) instead
     /// of keeping their complete frames with a warning. Recorded in the manifest.
     #[arg(long)]
@@ -140,11 +144,8 @@ pub fn run(a: DatasetArgs) -> Result<()> {
     };
     opts.fractions = [tr, va, te];
     if let Some(t) = &a.fps_table {
-        let n = opts
-            .ingest
-            .frame_rates
-            .merge_csv_file(t)
-            .map_err(anyhow::Error::msg)?;
+        let rates = &mut opts.ingest.frame_rates;
+        let n = rates.merge_csv_file(t).map_err(anyhow::Error::msg)?;
         if !a.quiet {
             eprintln!("frame-rate overrides: {n} rows from {}", t.display());
         }
@@ -158,16 +159,13 @@ pub fn run(a: DatasetArgs) -> Result<()> {
             .with_context(|| format!("reading the exclude list {}", f.display()))?;
         opts.exclude = parse_exclude_list(&text);
     }
-    let asf = match &a.asf {
-        Some(p) => {
-            let p = resolve(p);
-            if !p.is_file() {
-                bail!("--asf {}: no such file", p.display());
-            }
-            Some(p)
-        }
-        None => None,
-    };
+    if let Some(f) = &a.categories {
+        opts.categories = read_user_categories(&resolve(f)).map_err(anyhow::Error::msg)?;
+    }
+    let asf = a.asf.as_deref().map(resolve);
+    if let Some(p) = asf.as_ref().filter(|p| !p.is_file()) {
+        bail!("--asf {}: no such file", p.display());
+    }
     let mut sources = Vec::new();
     for s in &a.sources {
         let path = if s.starts_with("http://") || s.starts_with("https://") {

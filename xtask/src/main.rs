@@ -105,6 +105,13 @@ enum Command {
         #[arg(long)]
         asf: Option<PathBuf>,
     },
+    /// Write the category table of CMU's trials.csv (docs/dataset.md) and print trials per category.
+    Categories {
+        #[arg(long)]
+        trials: PathBuf,
+        #[arg(long, default_value = "data/cmu-categories.csv")]
+        out: PathBuf,
+    },
 }
 
 fn main() -> Result<()> {
@@ -153,6 +160,9 @@ fn main() -> Result<()> {
             full_asf_skeleton,
             asf,
         } => inspect(&file, full_asf_skeleton, asf),
+        Command::Categories { trials, out } => mocap_ingest::category::write_table(&trials, &out)
+            .map(|md| print!("{md}"))
+            .map_err(anyhow::Error::msg),
     }
 }
 
@@ -237,16 +247,12 @@ fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
 
 fn inspect(file: &Path, full_asf_skeleton: bool, asf: Option<PathBuf>) -> Result<()> {
     let dir = file.parent().unwrap_or(Path::new("."));
-    let name = file
-        .file_name()
-        .context("not a file path")?
-        .to_string_lossy()
-        .into_owned();
+    let name = file.file_name().context("not a file path")?;
     let source = Source::open(dir)?.with_fallback_asf(asf);
     let take = source
         .takes()?
         .into_iter()
-        .find(|t| t.motion.name == name)
+        .find(|t| t.motion.name == name.to_string_lossy())
         .with_context(|| format!("{}: not a .bvh or .amc file", file.display()))?;
     let mut opts = Options::default();
     opts.asf.full_skeleton = full_asf_skeleton;
@@ -269,10 +275,7 @@ fn inspect(file: &Path, full_asf_skeleton: bool, asf: Option<PathBuf>) -> Result
         clip.features.len(),
         opts.target_fps
     );
-    println!(
-        "{:<16} {:>10} {:>10} {:>10}",
-        "feature", "min", "mean", "max"
-    );
+    println!("feature                 min       mean        max");
     let names = mocap_ingest::features::feature_names();
     for (n, [lo, mean, hi]) in names
         .iter()

@@ -176,3 +176,70 @@ fn flagged_takes_rebuild_out_with_exclude() {
     );
     assert!(t.contains("0 flagged"), "{t}");
 }
+
+#[test]
+fn dataset_categories_file_and_the_categories_command() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let src = six_takes(tmp.path());
+    std::fs::rename(src.join("02_06.bvh"), src.join("mine.bvh")).unwrap();
+    let cats = tmp.path().join("cats.csv");
+    let dataset = |out: &Path| {
+        xtask()
+            .args(["dataset", "--quiet", "--window", "32", "--stride", "16"])
+            .args(["--split", "0.5,0.5,0", "--categories"])
+            .arg(&cats)
+            .arg("--source")
+            .arg(&src)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    // A bad line stops the build, naming the file, the line and the categories.
+    std::fs::write(&cats, "take,category\nmine,walk\nmine2,skating\n").unwrap();
+    let o = dataset(&tmp.path().join("bad"));
+    let t = text(&o);
+    assert!(!o.status.success());
+    assert!(
+        t.contains("cats.csv: line 3")
+            && t.contains("\"skating\"")
+            && t.contains("walk, run, jump, dance, sport, play, floor, gesture, other"),
+        "{t}"
+    );
+    assert!(!tmp.path().join("bad").exists());
+    // A good file: the take gets its category, the audit (with the rebuild,
+    // which reads the categories from the manifest) passes and has the table.
+    std::fs::write(&cats, "# mine\nmine,dance\n").unwrap();
+    let ds = tmp.path().join("ds");
+    assert!(dataset(&ds).status.success(), "{}", text(&dataset(&ds)));
+    let report = tmp.path().join("report");
+    let o = audit(&ds, Some(&src), &report);
+    assert!(o.status.success(), "{}", text(&o));
+    let md = std::fs::read_to_string(report.join("audit.md")).unwrap();
+    assert!(
+        md.contains("## Categories") && md.contains("| dance | 1 |"),
+        "{md}"
+    );
+    // The categories command writes the table from a trials.csv.
+    let trials = tmp.path().join("trials.csv");
+    std::fs::write(
+        &trials,
+        "take,subject,trial,fps,description\n02_01,2,1,120,walk\n01_01,1,1,120,\"playground - forward jumps, turn around\"\n",
+    )
+    .unwrap();
+    let out = tmp.path().join("cats-out.csv");
+    let o = xtask()
+        .args(["categories", "--trials"])
+        .arg(&trials)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("| `play` | 1 |"), "{}", text(&o));
+    assert_eq!(
+        std::fs::read_to_string(&out).unwrap(),
+        "take,category,description\n01_01,play,\"playground - forward jumps, turn around\"\n02_01,walk,walk\n"
+    );
+}

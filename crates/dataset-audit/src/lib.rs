@@ -4,6 +4,7 @@
 
 pub mod markdown;
 
+use mocap_ingest::category::Category;
 use mocap_ingest::dataset::{
     build_dataset, manifest_warnings, sha256_hex, DatasetOptions, Encoding, NoProgress, SplitBy,
     Stats, SPLITS,
@@ -61,6 +62,17 @@ pub struct TakeQuality {
     pub flags: Vec<String>,
 }
 
+/// Windows of one category per split.
+#[derive(Clone, Debug, Serialize)]
+pub struct CategoryWindows {
+    /// The category's name.
+    pub category: String,
+    /// Takes of this category.
+    pub takes: u64,
+    /// Windows in train, val, test.
+    pub windows: [u64; 3],
+}
+
 /// Thresholds of the data-quality flags.
 #[derive(Clone, Debug, Serialize)]
 pub struct Thresholds {
@@ -98,6 +110,12 @@ pub struct Report {
     pub thresholds: Thresholds,
     /// Features whose std hit the floor.
     pub floored_features: Vec<String>,
+    /// Windows per category and split (`takes.parquet`'s `category`; empty
+    /// for a format 3 dataset, which has no categories).
+    pub categories: Vec<CategoryWindows>,
+    /// Data-quality notes: worth knowing, not failures (a category with
+    /// train windows but no test windows).
+    pub notes: Vec<String>,
     /// Horizontal root speed of every frame, m/s (for a histogram).
     #[serde(skip)]
     pub speeds: Vec<f64>,
@@ -161,6 +179,8 @@ fn expected_schema(file: &str) -> Vec<(String, DataType)> {
             s("native_frames", DataType::UInt32),
             s("frames", DataType::UInt32),
             s("split", DataType::String),
+            s("category", DataType::String),
+            s("description", DataType::String),
         ],
         _ => vec![
             s("take", DataType::String),
@@ -212,6 +232,8 @@ pub fn audit(dir: &Path, rebuild: &Rebuild, thresholds: Thresholds) -> Result<Re
         takes: Vec::new(),
         thresholds,
         floored_features: Vec::new(),
+        categories: Vec::new(),
+        notes: Vec::new(),
         speeds: Vec::new(),
         toe_heights: Vec::new(),
     };
@@ -285,8 +307,16 @@ fn checks_on_tables(dir: &Path, manifest: &serde_json::Value, r: &mut Report) ->
             .map(|(n, t)| (n.to_string(), t.clone()))
             .collect();
         let want = expected_schema(f);
-        let ok = got == want;
-        let detail = if ok {
+        // Format 3 (before categories): takes.parquet without its last two columns.
+        let format3 =
+            f == "takes.parquet" && got.len() + 2 == want.len() && got[..] == want[..got.len()];
+        let ok = got == want || format3;
+        let detail = if format3 {
+            format!(
+                "{} columns as documented for format 3 (no category, description)",
+                got.len()
+            )
+        } else if ok {
             format!("{} columns as documented", got.len())
         } else {
             let diff = want
@@ -514,12 +544,69 @@ fn checks_on_tables(dir: &Path, manifest: &serde_json::Value, r: &mut Report) ->
             .join(", "),
     );
 
+    if takes.clone().collect_schema()?.contains("category") {
+        category_windows(&takes, &windows, r)?;
+    }
     statistics(dir, &frames, &windows, r)?;
     quality(
         &frames,
         manifest["options"]["fps"].as_f64().unwrap_or(30.0),
         r,
     )?;
+    Ok(())
+}
+
+/// Windows per category and split, every known category listed (then any
+/// other name found); a category with train windows but no test windows gets
+/// a note (the test set cannot tell how the model does on it).
+fn category_windows(takes: &LazyFrame, windows: &LazyFrame, r: &mut Report) -> PolarsResult<()> {
+    let mut rows: BTreeMap<String, CategoryWindows> = BTreeMap::new();
+    let empty = |c: &str| CategoryWindows {
+        category: c.to_string(),
+        takes: 0,
+        windows: [0; 3],
+    };
+    for (c, n) in counts_by(takes, "category")? {
+        rows.entry(c.clone()).or_insert_with(|| empty(&c)).takes = n;
+    }
+    let df = windows
+        .clone()
+        .join(
+            takes.clone().select([col("take"), col("category")]),
+            [col("take")],
+            [col("take")],
+            JoinArgs::new(JoinType::Inner),
+        )
+        .group_by([col("category"), col("split")])
+        .agg([len().alias("n")])
+        .collect()?;
+    let (cats, splits) = (df.column("category")?.str()?, df.column("split")?.str()?);
+    for i in 0..df.height() {
+        let (Some(c), Some(s)) = (cats.get(i), splits.get(i)) else {
+            continue;
+        };
+        let Some(k) = SPLITS.iter().position(|x| *x == s) else {
+            continue;
+        };
+        rows.entry(c.to_string())
+            .or_insert_with(|| empty(c))
+            .windows[k] = u64_of(&df, "n", i).unwrap_or(0);
+    }
+    let known = Category::ALL.map(Category::name);
+    let mut list: Vec<CategoryWindows> = known
+        .iter()
+        .map(|k| rows.remove(*k).unwrap_or_else(|| empty(k)))
+        .collect();
+    list.extend(rows.into_values());
+    for c in &list {
+        if c.windows[0] > 0 && c.windows[2] == 0 {
+            r.notes.push(format!(
+                "category {} has {} train windows but no test windows",
+                c.category, c.windows[0]
+            ));
+        }
+    }
+    r.categories = list;
     Ok(())
 }
 
@@ -804,6 +891,13 @@ fn reproduce(dir: &Path, rebuild: &Rebuild, manifest: &serde_json::Value, r: &mu
             .iter()
             .filter_map(|v| v.as_str().map(String::from))
             .collect();
+    }
+    if let Some(map) = o["categories"].as_object() {
+        for (take, c) in map {
+            if let Some(c) = c.as_str().and_then(|c| c.parse().ok()) {
+                opts.categories.insert(take.clone(), c);
+            }
+        }
     }
     let tmp = std::env::temp_dir().join(format!("dataset-audit-{}", std::process::id()));
     let out = tmp.join("rebuild");

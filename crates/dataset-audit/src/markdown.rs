@@ -57,6 +57,20 @@ pub fn markdown(r: &Report, seconds: f64) -> String {
             r.floored_features.join(", ")
         }
     );
+    if !r.categories.is_empty() {
+        let _ = writeln!(
+            s,
+            "## Categories\n\nWindows per category and split (`takes.parquet`'s `category`).\n\n| category | takes | train | val | test |\n|---|---|---|---|---|"
+        );
+        for c in &r.categories {
+            let [tr, va, te] = c.windows;
+            let _ = writeln!(s, "| {} | {} | {tr} | {va} | {te} |", c.category, c.takes);
+        }
+        let _ = writeln!(s);
+    }
+    for n in &r.notes {
+        let _ = writeln!(s, "Note: {n}.\n");
+    }
     let flagged: Vec<_> = r.takes.iter().filter(|t| !t.flags.is_empty()).collect();
     let th = &r.thresholds;
     let _ = writeln!(

@@ -7,6 +7,7 @@
 //! the thread count. The split of a take (or subject) is a hash of the seed
 //! and its id, so adding a take never moves another.
 
+use crate::category::{self, Category, CategoryTable};
 use crate::features::{feature_names, NUM_FEATURES};
 use crate::source::{FileRef, Source, TakeInput};
 use crate::{process_take_with, Clip, ErrorKind, IngestError, Options};
@@ -32,8 +33,9 @@ const CHUNK: usize = 16;
 /// Version of the dataset layout written here (2: take ids from paths for
 /// non-CMU names, `take` and `kept` in `skipped.json`, Zstandard; 3: files
 /// cut short keep their complete frames, `warnings` and `options.strict` in
-/// the manifest).
-pub const FORMAT_VERSION: u32 = 3;
+/// the manifest; 4: `category` and `description` in `takes.parquet`,
+/// `options.categories` in the manifest).
+pub const FORMAT_VERSION: u32 = 4;
 
 /// The three splits, in this order everywhere.
 pub const SPLITS: [&str; 3] = ["train", "val", "test"];
@@ -110,6 +112,10 @@ pub struct DatasetOptions {
     pub std_floor: f64,
     /// Take ids left out (see [`parse_exclude_list`]); their files are not read.
     pub exclude: BTreeSet<String>,
+    /// The user's categories (`--categories FILE`, see
+    /// [`crate::category::parse_user_categories`]): they win over the built-in
+    /// CMU table; a take in neither is `other`.
+    pub categories: BTreeMap<String, Category>,
     /// Compression and float encoding of the tables.
     pub encoding: Encoding,
     /// Skip files that end inside their motion (code `truncated`), as
@@ -128,6 +134,7 @@ impl Default for DatasetOptions {
             split_by: SplitBy::Take,
             std_floor: 1e-3,
             exclude: BTreeSet::new(),
+            categories: BTreeMap::new(),
             encoding: Encoding::ZstdByteStreamSplit,
             strict: false,
         }
@@ -942,7 +949,11 @@ impl Tally<'_> {
             self.windows_rows
                 .push((clip.take_id.clone(), s as u32, split));
         }
+        let (category, description) =
+            category::resolve(&clip.take_id, &opts.categories, CategoryTable::cmu());
         self.takes_rows.push(TakeRow {
+            category: category.name(),
+            description: description.map(String::from),
             take: clip.take_id.clone(),
             subject: subject.to_string(),
             file: copy.file.clone(),
@@ -1073,6 +1084,9 @@ fn write_all(
 
     // The manifest comes last: it lists every other output with its hash
     // (computed while writing, so no output is read back).
+    let categories: BTreeMap<&str, &str> = (opts.categories.iter())
+        .map(|(t, c)| (t.as_str(), c.name()))
+        .collect();
     let manifest = serde_json::json!({
         "tool": "mocap-ingest",
         "tool_version": env!("CARGO_PKG_VERSION"),
@@ -1089,6 +1103,7 @@ fn write_all(
             "full_asf_skeleton": opts.ingest.asf.full_skeleton,
             "frame_rate_overrides": frame_rate_overrides(&opts.ingest),
             "exclude": opts.exclude,
+            "categories": categories,
             "asf": asf,
             "encoding": opts.encoding.name(),
             "strict": opts.strict,
@@ -1220,6 +1235,8 @@ struct TakeRow {
     native_frames: u32,
     frames: u32,
     split: usize,
+    category: &'static str,
+    description: Option<String>,
 }
 
 fn write_takes(
@@ -1237,6 +1254,8 @@ fn write_takes(
         Field::new("native_frames", DataType::UInt32, false),
         Field::new("frames", DataType::UInt32, false),
         Field::new("split", DataType::Utf8, false),
+        Field::new("category", DataType::Utf8, false),
+        Field::new("description", DataType::Utf8, true),
     ]));
     let strings = |f: fn(&TakeRow) -> &str| -> ArrayRef {
         Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
@@ -1256,6 +1275,10 @@ fn write_takes(
         counts(|r| r.native_frames),
         counts(|r| r.frames),
         strings(|r| SPLITS[r.split]),
+        strings(|r| r.category),
+        Arc::new(StringArray::from_iter(
+            rows.iter().map(|r| r.description.as_deref()),
+        )),
     ];
     write_table(path, schema, cols, encoding)
 }

@@ -12,6 +12,7 @@ pub mod asf;
 pub mod atomic;
 pub mod bench;
 pub mod bvh;
+pub mod category;
 pub mod dataset;
 pub mod error;
 pub mod features;
