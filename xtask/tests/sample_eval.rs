@@ -350,6 +350,14 @@ fn every_model_trains_samples_and_evaluates() {
                 .unwrap();
         let cv = v["generated"]["bone_cv"].as_f64().unwrap();
         assert!(cv.is_finite(), "{name}");
+        // Beside continuing the split's windows, as many motions from
+        // training contexts, measured alike.
+        let from_training = &v["from_training"]["generated"];
+        assert_eq!(
+            from_training["motions"], v["generated"]["motions"],
+            "{name}"
+        );
+        assert!(v["from_training"]["frechet"].as_f64().unwrap().is_finite());
         // The long horizon: 8 s of 32-frame windows is 7 stretches, each of
         // the 8 motions, against every real window (train and val here).
         let h = &v["horizon"];

@@ -75,6 +75,11 @@ pub struct EvalReport {
     #[serde(default)]
     pub spread: Spread,
     pub options: Options,
+    /// With `--contexts split`, the same number of motions generated from
+    /// random training contexts (as `sample` does), measured alike: the
+    /// harder task, beside the continuation of the split's own windows.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub from_training: Option<FromTraining>,
     /// Motions rolled out for a minute, stretch by stretch (`eval --horizon`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub horizon: Option<Horizon>,
@@ -85,6 +90,16 @@ pub struct EvalReport {
 
 fn one() -> f64 {
     1.0
+}
+
+/// Motions generated from random training contexts, measured against the
+/// split's real windows.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FromTraining {
+    /// Every measure of the generated set.
+    pub generated: MotionStats,
+    /// Fréchet distance to the split's real windows.
+    pub frechet: f64,
 }
 
 /// Within-window spread of each set ([`motion_metrics::mean_spread`]).
@@ -123,6 +138,16 @@ pub fn report(
     };
     let global = |set: &[Vec<f32>]| -> Vec<Vec<Pose>> {
         set.iter().map(|x| to_poses(x, &m.data.stats)).collect()
+    };
+    let from_training = match contexts {
+        Contexts::Split => {
+            let g = m.sample(w.n, w.length, a.context, a.seed)?;
+            Some((
+                motion_stats(&global(&g), &Options::default()),
+                generate::summaries(&g, NUM_FEATURES),
+            ))
+        }
+        Contexts::Train => None,
     };
     let o = Options::default();
     let (sr, sc, sg) = (
@@ -165,6 +190,10 @@ pub fn report(
         reconstructed: sc,
         generated: sg,
         options: o,
+        from_training: from_training.map(|(generated, summaries)| FromTraining {
+            generated,
+            frechet: motion_metrics::frechet(&s_real, &summaries),
+        }),
         warnings: m.warnings.clone(),
         horizon: horizon.map(|o| crate::horizon::horizon(a, o)).transpose()?,
     };
@@ -187,7 +216,7 @@ pub fn markdown(r: &EvalReport) -> String {
     );
     s += "| measure | real | reconstructed | generated | reconstructed / real | generated / real |\n|---|---|---|---|---|---|\n";
     type Row = (&'static str, fn(&MotionStats) -> f64, usize);
-    let rows: [Row; 11] = [
+    let rows: [Row; 12] = [
         ("APD, m", |m| m.apd_m, 3),
         ("mean jerk, m/s³", |m| m.jerk_m_s3, 1),
         ("power above 5 Hz", |m| m.high_freq_share, 4),
@@ -203,6 +232,7 @@ pub fn markdown(r: &EvalReport) -> String {
             |m| m.skate_in_contact,
             4,
         ),
+        ("turning rate, °/s", |m| m.turning_deg_s, 1),
         ("hips height, m", |m| m.hip_height_m, 3),
         ("hips height, last 32 frames, m", |m| m.hip_height_end_m, 3),
         ("hips horizontal speed, m/s", |m| m.root_speed_m_s, 3),
@@ -225,6 +255,22 @@ pub fn markdown(r: &EvalReport) -> String {
             "| {name} | {a:.p$} | {b:.p$} | {c:.p$} | {} | {} |\n",
             ratio(b, a),
             ratio(c, a)
+        );
+    }
+    if let Some(t) = &r.from_training {
+        let g = &t.generated;
+        s += &format!(
+            "\nGenerated from random training contexts instead (as `sample`; {} motions), ÷ real: APD {}, jerk {}, contact {}, skating in contact {}, hips height {}, hips speed {} (last 32 frames {}), turning {}; Fréchet {:.2}.\n",
+            g.motions,
+            ratio(g.apd_m, r.real.apd_m),
+            ratio(g.jerk_m_s3, r.real.jerk_m_s3),
+            ratio(g.contact_share, r.real.contact_share),
+            ratio(g.skate_in_contact, r.real.skate_in_contact),
+            ratio(g.hip_height_m, r.real.hip_height_m),
+            ratio(g.root_speed_m_s, r.real.root_speed_m_s),
+            ratio(g.root_speed_end_m_s, r.real.root_speed_end_m_s),
+            ratio(g.turning_deg_s, r.real.turning_deg_s),
+            t.frechet
         );
     }
     s += &format!(
