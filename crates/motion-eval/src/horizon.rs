@@ -86,10 +86,13 @@ pub struct Horizon {
     pub stretches: Vec<Stretch>,
 }
 
-/// Roll out `o.motions` motions of the run of `spec` for `o.seconds` and
-/// measure every stretch (see the module documentation).
-pub fn horizon(spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, EvalError> {
-    let m = Run::load(spec, &["train", "val", "test"])?;
+/// Every split the long horizon reads ([`Run::load`] them all).
+pub const SPLITS: [&str; 3] = ["train", "val", "test"];
+
+/// Roll out `o.motions` motions of the loaded run `m` (with [`SPLITS`]) for
+/// `o.seconds`, with `spec`'s context, seed and split, and measure every
+/// stretch (see the module documentation).
+pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, EvalError> {
     let train = m.split("train")?;
     let test = m.split(&spec.split)?;
     let len = train.length;
@@ -123,7 +126,7 @@ pub fn horizon(spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, EvalError> 
     }
     // Every real window of the dataset, and draws of the generated set's size.
     let mut real: Vec<Vec<Pose>> = Vec::new();
-    for split in ["train", "val", "test"] {
+    for split in SPLITS {
         if let Some(w) = m.data.splits.get(split) {
             real.extend(
                 generate::windows_of(w)

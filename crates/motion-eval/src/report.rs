@@ -118,7 +118,12 @@ pub fn report(
     contexts: Contexts,
     horizon: Option<HorizonOptions>,
 ) -> Result<EvalReport, EvalError> {
-    let m = Run::load(a, &["train", &a.split])?;
+    // The long horizon measures against every split: load them once.
+    let splits = match horizon {
+        Some(_) => crate::horizon::SPLITS.to_vec(),
+        None => vec!["train", a.split.as_str()],
+    };
+    let m = Run::load(a, &splits)?;
     let w = m.split(&a.split)?;
     let (recon, kl) = evaluate(&m.model.model, w, 256, a.seed, &m.device)?;
     let t = w.length as f64;
@@ -195,7 +200,9 @@ pub fn report(
             frechet: motion_metrics::frechet(&s_real, &summaries),
         }),
         warnings: m.warnings.clone(),
-        horizon: horizon.map(|o| crate::horizon::horizon(a, o)).transpose()?,
+        horizon: horizon
+            .map(|o| crate::horizon::horizon(&m, a, o))
+            .transpose()?,
     };
     Ok(report)
 }
