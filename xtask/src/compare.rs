@@ -29,6 +29,13 @@ pub struct CompareArgs {
     /// The results page (Markdown; contact sheets go to `images/` beside it).
     #[arg(long, default_value = "runs/compare/results.md")]
     page: PathBuf,
+    /// Seconds each run's motions are rolled out for (0: no long horizon).
+    #[arg(long, default_value_t = 60.0)]
+    horizon: f64,
+    /// Reuse each run's kept report (RUN/compare-eval.json) instead of
+    /// evaluating it again.
+    #[arg(long)]
+    reuse_reports: bool,
 }
 
 /// `cargo xtask compare`.
@@ -48,6 +55,11 @@ pub fn run(a: CompareArgs) -> Result<()> {
         seeds: a.seeds,
         epochs: a.epochs,
         page: a.page,
+        horizon: (a.horizon > 0.0).then_some(motion_eval::horizon::HorizonOptions {
+            seconds: a.horizon,
+            motions: 256,
+        }),
+        reuse_reports: a.reuse_reports,
     };
     let md = compare(&o, &|line| eprintln!("{line}"))?;
     println!("{md}");

@@ -10,10 +10,9 @@ mod fetch;
 mod motion;
 mod train;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use clap::{Parser, Subcommand};
-use mocap_ingest::source::Source;
-use mocap_ingest::{process_take, Options};
+use mocap_ingest::Options;
 use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
@@ -42,6 +41,9 @@ enum Command {
     /// Open a run's 3-D viewer in headless Chromium: fail on a JavaScript
     /// error, screenshot the generated set and the real/reconstruction pairs.
     Screenshot(motion::ScreenshotArgs),
+    /// Continue a motion file (BVH, or AMC with its ASF) with a trained
+    /// model: a BVH of the clip followed by generated motion.
+    Continue(motion::ContinueArgs),
     /// Measure a trained run against real windows: ELBO, diversity,
     /// smoothness, bone lengths, foot skating, Fréchet distance.
     Eval(motion::EvalArgs),
@@ -49,26 +51,10 @@ enum Command {
     /// results page (mean ± std over seeds, goals met, contact sheets).
     Compare(compare::CompareArgs),
     /// Benchmark a training step at given batch sizes, and sampling.
-    BenchTrain {
-        /// Batch sizes.
-        #[arg(long, value_delimiter = ',', default_values_t = [1600, 64])]
-        batch: Vec<usize>,
-        /// Timed steps per batch size (after 2 warm-up steps).
-        #[arg(long, default_value_t = 5)]
-        steps: usize,
-        /// Models to time (default: every model).
-        #[arg(long = "model", value_parser = train::parse_model)]
-        models: Vec<String>,
-        /// Also time each model through candle ops and autograd (the
-        /// blocks' reference path).
-        #[arg(long)]
-        autograd: bool,
-        /// A Python with PyTorch: also time the paper's model in PyTorch
-        /// eager (`xtask/py/pytorch_vrnn_step.py`) and print every model's
-        /// speed-up against it.
-        #[arg(long, value_name = "PYTHON")]
-        pytorch: Option<PathBuf>,
-    },
+    BenchTrain(train::BenchArgs),
+    /// Train the motion classifier on a dataset's train windows and print
+    /// its accuracy, diversity, multimodality and Fréchet distance.
+    TrainClassifier(train::ClassifierArgs),
     /// Benchmark `dataset` end to end on the CMU samples, 1 thread and all
     /// cores, and the ASF/AMC sample at 10×, each in a fresh process
     /// (reports peak RSS).
@@ -127,28 +113,14 @@ fn main() -> Result<()> {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
         Command::Sample(args) => motion::sample(args),
+        Command::Continue(args) => motion::continue_clip(args),
         Command::Export(args) => motion::export(args),
         Command::Screenshot(args) => motion::screenshot(args),
         Command::Eval(args) => motion::eval(args),
         Command::Audit(args) => audit::run(args),
         Command::Compare(args) => compare::run(args),
-        Command::BenchTrain {
-            batch,
-            steps,
-            models,
-            autograd,
-            pytorch,
-        } => {
-            let models = if models.is_empty() {
-                motion_vrnn::model::MODELS
-                    .iter()
-                    .map(|m| m.0.to_string())
-                    .collect()
-            } else {
-                models
-            };
-            train::bench(&models, &batch, steps.max(1), autograd, pytorch.as_deref())
-        }
+        Command::BenchTrain(args) => train::bench(args),
+        Command::TrainClassifier(args) => train::classifier(args),
         Command::BenchDataset {
             sources,
             repeat,
@@ -205,83 +177,16 @@ fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
         sources
     };
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    println!("read + FK + 58 features, whole collection, best of {repeat} (input = uncompressed motion + skeleton bytes; frames at the native rate)");
-    println!(
-        "{:<28} {:>7} {:>6} {:>9} {:>10} {:>8} {:>9} {:>13}",
-        "source", "threads", "files", "MB", "frames", "seconds", "MB/s", "frames/s"
+    print!(
+        "{}",
+        mocap_ingest::bench::ingest_report(&sources, cores, repeat)?
     );
-    for path in &sources {
-        let source = Source::open(path)?;
-        let takes = source.takes()?;
-        if takes.is_empty() {
-            bail!("{}: no .bvh or .amc files", path.display());
-        }
-        let mut thread_counts = vec![1];
-        if cores > 1 {
-            thread_counts.push(cores);
-        }
-        for &threads in &thread_counts {
-            let t = mocap_ingest::bench::best_throughput(&source, &takes, threads, repeat)?;
-            let name = file_name(path);
-            println!(
-                "{:<28} {:>7} {:>6} {:>9.1} {:>10} {:>8.3} {:>9.1} {:>13.0}",
-                name,
-                threads,
-                t.files,
-                t.bytes as f64 / 1e6,
-                t.native_frames,
-                t.seconds,
-                t.bytes as f64 / 1e6 / t.seconds,
-                t.native_frames as f64 / t.seconds
-            );
-            if t.failed > 0 {
-                println!(
-                    "  ({} files failed; run `cargo xtask inspect FILE` on them)",
-                    t.failed
-                );
-            }
-        }
-    }
     Ok(())
 }
 
 fn inspect(file: &Path, full_asf_skeleton: bool, asf: Option<PathBuf>) -> Result<()> {
-    let dir = file.parent().unwrap_or(Path::new("."));
-    let name = file.file_name().context("not a file path")?;
-    let source = Source::open(dir)?.with_fallback_asf(asf);
-    let take = source
-        .takes()?
-        .into_iter()
-        .find(|t| t.motion.name == name.to_string_lossy())
-        .with_context(|| format!("{}: not a .bvh or .amc file", file.display()))?;
     let mut opts = Options::default();
     opts.asf.full_skeleton = full_asf_skeleton;
-    let mut reader = source.reader()?;
-    let clip = process_take(&source, &mut reader, &take, &opts)?;
-    println!("file:          {}", file.display());
-    println!("take:          {} (subject {})", clip.take_id, take.subject);
-    if let Some(asf) = &take.asf {
-        println!(
-            "asf:           {} ({})",
-            source.display_file(asf),
-            take.asf_search
-        );
-    }
-    println!("skeleton:      {}", clip.skeleton.name());
-    println!(
-        "frames:        {} at {} fps → {} at {} fps",
-        clip.native_frames,
-        clip.source_fps,
-        clip.features.len(),
-        opts.target_fps
-    );
-    println!("feature                 min       mean        max");
-    let names = mocap_ingest::features::feature_names();
-    for (n, [lo, mean, hi]) in names
-        .iter()
-        .zip(mocap_ingest::features::ranges(&clip.features))
-    {
-        println!("{n:<16} {lo:>10.4} {mean:>10.4} {hi:>10.4}");
-    }
+    print!("{}", mocap_ingest::describe_file(file, asf, &opts)?);
     Ok(())
 }

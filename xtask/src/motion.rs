@@ -7,7 +7,7 @@ use motion_eval::horizon::HorizonOptions;
 use motion_eval::report::{markdown, report, Contexts};
 use motion_eval::run::RunSpec;
 use motion_eval::samples::{write_samples, SampleOptions};
-use motion_render::bvh::RoundTrip;
+use motion_render::bvh::{round_trip_table, RoundTrip};
 use motion_vrnn::generate;
 use motion_vrnn::train::layout;
 use std::path::{Path, PathBuf};
@@ -39,6 +39,10 @@ pub struct RunArgs {
     /// model's own (`docs/training.md`; 1: the prior as trained).
     #[arg(long)]
     pub temperature: Option<f64>,
+    /// Generate in runs of this many frames, each restarting the model on
+    /// the last --context frames made, instead of the model's own (0: one run).
+    #[arg(long)]
+    pub restart: Option<usize>,
 }
 
 /// `cargo xtask sample` options.
@@ -80,6 +84,28 @@ pub struct EvalArgs {
     /// Output directory for eval.json and eval.md (default: RUN/eval).
     #[arg(long)]
     out: Option<PathBuf>,
+}
+
+/// `cargo xtask continue` options.
+#[derive(Args, Debug)]
+pub struct ContinueArgs {
+    #[command(flatten)]
+    run: RunArgs,
+    /// The clip: a .bvh (any supported release) or an .amc with its ASF.
+    #[arg(long)]
+    input: PathBuf,
+    /// ASF skeleton for an .amc whose own is not found beside it.
+    #[arg(long)]
+    asf: Option<PathBuf>,
+    /// Seconds of motion generated after the clip.
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
+    /// The BVH to write (with --variations K > 1: OUT_0.bvh … OUT_{K-1}.bvh).
+    #[arg(long)]
+    out: PathBuf,
+    /// Continuations to write, from seeds --seed, --seed + 1, …
+    #[arg(long, default_value_t = 1)]
+    variations: usize,
 }
 
 /// `cargo xtask screenshot` options.
@@ -124,6 +150,7 @@ impl RunArgs {
             split: self.split.clone(),
             context: self.context,
             temperature: self.temperature,
+            restart: self.restart,
         }
     }
 }
@@ -169,32 +196,8 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         "  anim/*.png                      animated PNG per motion (and real vs reconstruction)"
     );
     println!("  viewer.html                     open in a browser: 3-D, orbit/pan/zoom, play/pause, speed, frame slider");
-    print_round_trips(&w.round_trips);
+    print!("{}", round_trip_table(&w.round_trips));
     Ok(())
-}
-
-/// The BVH round-trip table: per set, the worst and mean joint distance of
-/// the file read back, and the part bone-length variation explains.
-fn print_round_trips(sets: &[(&str, Vec<RoundTrip>)]) {
-    println!(
-        "BVH read back with mocap-ingest (joint distance to the motion, CMU units; x0.0564 = m):"
-    );
-    println!(
-        "  {:<14} {:>7} {:>10} {:>10} {:>16} {:>16}",
-        "set", "motions", "max", "mean", "bone-length max", "unexplained max"
-    );
-    for (name, t) in sets {
-        let max = |f: fn(&RoundTrip) -> f64| t.iter().map(f).fold(0.0, f64::max);
-        let mean = t.iter().map(|r| r.mean).sum::<f64>() / t.len().max(1) as f64;
-        println!(
-            "  {name:<14} {:>7} {:>10} {:>10} {:>16} {:>16}",
-            t.len(),
-            dist(max(|r| r.max)),
-            dist(mean),
-            dist(max(|r| r.bone_max)),
-            dist(max(|r| r.residual_max))
-        );
-    }
 }
 
 /// `cargo xtask screenshot`: open the 3-D viewer in headless Chromium, fail
@@ -227,15 +230,6 @@ pub fn screenshot(a: ScreenshotArgs) -> Result<()> {
         println!("{} -> {} (no JavaScript error)", query, png.display());
     }
     Ok(())
-}
-
-/// A distance for the round-trip table: fixed above 0.01, else scientific.
-fn dist(v: f64) -> String {
-    if v >= 0.01 {
-        format!("{v:.3}")
-    } else {
-        format!("{v:.1e}")
-    }
 }
 
 /// `cargo xtask export`: motions Parquet files → one BVH per motion.
@@ -292,7 +286,7 @@ pub fn export(a: ExportArgs) -> Result<()> {
     }
     let named: Vec<(&str, Vec<RoundTrip>)> =
         sets.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
-    print_round_trips(&named);
+    print!("{}", round_trip_table(&named));
     if failed > 0 {
         bail!("{failed} of {} files could not be exported", files.len());
     }
@@ -323,5 +317,56 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         out.join("eval.md").display(),
         started.elapsed().as_secs_f64()
     );
+    Ok(())
+}
+
+/// `cargo xtask continue`: a clip and what the model makes of its future, as BVH.
+pub fn continue_clip(a: ContinueArgs) -> Result<()> {
+    use motion_eval::continuation::{continue_clip, ContinueOptions};
+    let o = ContinueOptions {
+        seconds: a.seconds,
+        seed: a.run.seed,
+        variations: a.variations,
+        context: a.run.context,
+    };
+    if !(o.seconds > 0.0 && o.seconds.is_finite()) || o.variations == 0 {
+        bail!("--seconds must be positive and --variations at least 1");
+    }
+    let (_, _, clip) = mocap_ingest::clip_of_file(&a.input, a.asf.clone(), &Default::default())
+        .with_context(|| format!("reading {}", a.input.display()))?;
+    let run = motion_eval::run::Run::load(&a.run.spec(), &[])?;
+    for warning in &run.warnings {
+        eprintln!("warning: {warning}");
+    }
+    let done = continue_clip(&run, &clip.features, &o)
+        .with_context(|| format!("continuing {}", a.input.display()))?;
+    let (stem, dir) = (
+        a.out.with_extension(""),
+        a.out.parent().unwrap_or(Path::new(".")),
+    );
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    println!(
+        "{}: {} frames at 30 fps; the model reads the last {}",
+        a.input.display(),
+        clip.features.len(),
+        o.context.min(clip.features.len())
+    );
+    println!(
+        "seam (mean joint step, CMU units): the clip moves {:.3} a frame (largest {:.3})",
+        done[0].seam.clip_mean, done[0].seam.clip_max
+    );
+    for c in &done {
+        let path = match done.len() {
+            1 => a.out.clone(),
+            _ => PathBuf::from(format!("{}_{}.bvh", stem.display(), c.seed - o.seed)),
+        };
+        motion_render::bvh::write_bvh(&path, &c.motion)?;
+        let check = motion_render::bvh::read_motion(&path, "check")?;
+        println!(
+            "{} <- seed {}: {} + {} frames ({:.1} s); seam step {:.3} ({:.2}x the clip's mean, clip's last {:.3}, next second {:.3}); read back: {} frames",
+            path.display(), c.seed, c.clip_frames, c.motion.poses.len() - c.clip_frames,
+            c.motion.poses.len() as f64 / 30.0, c.seam.jump, c.seam.jump / c.seam.clip_mean.max(1e-9), c.seam.clip_last, c.seam.next_second, check.poses.len()
+        );
+    }
     Ok(())
 }

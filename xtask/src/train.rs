@@ -3,11 +3,12 @@
 use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use motion_vrnn::bench::{pytorch_medians, speedup_bound, time_steps, StepTiming};
+use motion_vrnn::bench;
+use motion_vrnn::classifier::{self, ClassifierTraining};
 use motion_vrnn::model::{Config, MODELS};
 use motion_vrnn::options::{Overrides, Preset, SelectBy};
 use motion_vrnn::train::{layout, train, EpochMetrics, TrainProgress};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct TrainArgs {
@@ -241,88 +242,70 @@ pub fn run(a: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-/// `cargo xtask bench-train`: seconds per training step (forward, backward,
-/// Adam) of each model on random windows, and the sampling time, in one
-/// table; with `reference`, also through candle ops (autograd); with
-/// `pytorch`, every model against PyTorch eager on the paper's model.
-pub fn bench(
-    models: &[String],
-    batches: &[usize],
-    steps: usize,
-    reference: bool,
-    pytorch: Option<&Path>,
-) -> Result<()> {
+/// `cargo xtask bench-train` ([`motion_vrnn::bench::report`], printed as it goes).
+pub fn bench(a: BenchArgs) -> Result<()> {
+    let script = crate::workspace_root().join("xtask/py/pytorch_vrnn_step.py");
+    let py = a.pytorch.as_deref().map(|p| (p, script.as_path()));
     let device = motion_vrnn::model::default_device();
-    println!(
-        "training step (T = {}, forward + backward + Adam) on {device:?}, {} rayon threads; median and min of {steps} steps after 2 warm-up steps",
-        motion_vrnn::bench::FRAMES,
-        rayon::current_num_threads()
-    );
-    println!(
-        "{:>9} {:>9} {:>6} {:>10} {:>10} {:>16} {:>12}",
-        "model", "path", "batch", "median s", "min s", "windows*frames/s", "sample 36 s"
-    );
-    let mut fused = Vec::new();
-    for name in models {
-        for r in time_steps(name, batches, steps, reference, &device)? {
-            println!(
-                "{:>9} {:>9} {:>6} {:>10.4} {:>10.4} {:>16.0} {:>12.4}",
-                r.model,
-                r.path,
-                r.batch,
-                r.median,
-                r.min,
-                (r.batch * motion_vrnn::bench::FRAMES) as f64 / r.median,
-                r.sample
-            );
-            if r.path == "fused" {
-                fused.push(r);
-            }
-        }
-    }
-    if let Some(python) = pytorch {
-        against_pytorch(python, &fused, batches, steps)?;
-    }
+    let mut print = |line: &str| println!("{line}");
+    let (models, batches) = (&a.models, &a.batch);
+    bench::report(
+        models, batches, a.steps, a.autograd, py, &device, &mut print,
+    )?;
     Ok(())
 }
 
-/// Every model against PyTorch eager running the paper's model on this
-/// machine (the faster of its two forms at each batch size), with the
-/// speed bounds of issue 11 ([`speedup_bound`]).
-fn against_pytorch(
-    python: &Path,
-    rows: &[StepTiming],
-    batches: &[usize],
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Batch sizes.
+    #[arg(long, value_delimiter = ',', default_values_t = [1600, 64])]
+    batch: Vec<usize>,
+    /// Timed steps per batch size (after 2 warm-up steps).
+    #[arg(long, default_value_t = 5)]
     steps: usize,
-) -> Result<()> {
-    let script = crate::workspace_root().join("xtask/py/pytorch_vrnn_step.py");
-    let threads = rayon::current_num_threads();
-    let stepwise = pytorch_medians(python, &script, batches, steps, threads, false)?;
-    let hoisted = pytorch_medians(python, &script, batches, steps, threads, true)?;
-    println!();
-    println!("PyTorch eager, paper model (xtask/py/pytorch_vrnn_step.py), median s per step:");
-    for ((b, s), (_, h)) in stepwise.iter().zip(&hoisted) {
-        println!("  batch {b:>5}: stepwise {s:.4}, hoisted {h:.4}");
-    }
-    println!();
-    println!(
-        "{:>9} {:>6} {:>10} {:>11} {:>9} {:>7} {:>4}",
-        "model", "batch", "median s", "PyTorch s", "speed-up", "bound", "met"
+    /// Models to time (default: every model).
+    #[arg(long = "model", value_parser = parse_model)]
+    models: Vec<String>,
+    /// Also time each model through candle ops and autograd (the
+    /// blocks' reference path).
+    #[arg(long)]
+    autograd: bool,
+    /// A Python with PyTorch: also time the paper's model in PyTorch
+    /// eager (`xtask/py/pytorch_vrnn_step.py`) and print every model's
+    /// speed-up against it.
+    #[arg(long, value_name = "PYTHON")]
+    pytorch: Option<PathBuf>,
+}
+
+/// `cargo xtask train-classifier` ([`motion_vrnn::classifier`]).
+pub fn classifier(a: ClassifierArgs) -> Result<()> {
+    let data = motion_vrnn::data::load(&a.data, &["train", "test"])
+        .with_context(|| format!("loading the dataset {}", a.data.display()))?;
+    let mut t = ClassifierTraining {
+        seed: a.seed,
+        ..Default::default()
+    };
+    t.epochs = a.epochs.unwrap_or(t.epochs);
+    let device = motion_vrnn::model::default_device();
+    print!(
+        "{}",
+        classifier::train_and_measure(&data, &a.out, &t, &device)?
     );
-    for r in rows {
-        let Some(i) = batches.iter().position(|x| *x == r.batch) else {
-            continue;
-        };
-        let torch = stepwise[i].1.min(hoisted[i].1);
-        let speedup = torch / r.median;
-        let bound = speedup_bound(r.self_feed, r.batch);
-        println!(
-            "{:>9} {:>6} {:>10.4} {torch:>11.4} {speedup:>8.2}x {bound:>6.1}x {:>4}",
-            r.model,
-            r.batch,
-            r.median,
-            if speedup >= bound { "yes" } else { "no" }
-        );
-    }
     Ok(())
+}
+
+#[derive(Args)]
+pub struct ClassifierArgs {
+    /// Dataset directory written by `cargo xtask dataset`.
+    #[arg(long, default_value = "data/datasets/cmu")]
+    data: PathBuf,
+    /// Classifier directory (classifier.safetensors, classifier.json).
+    #[arg(long, default_value = "runs/classifier")]
+    out: PathBuf,
+    /// Seed of initialisation, shuffles and the measures' draws.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Epochs (default 30).
+    #[arg(long)]
+    epochs: Option<usize>,
 }

@@ -402,3 +402,177 @@ fn every_model_trains_samples_and_evaluates() {
         }
     }
 }
+
+/// Copy `entry` of a shared sample archive into `dir`, keeping its file name.
+fn extract(archive: &str, entry: &str, dir: &Path) -> std::path::PathBuf {
+    let source = mocap_ingest::source::Source::open(&common::shared(archive)).unwrap();
+    let bytes = source.reader().unwrap().read(entry).unwrap();
+    std::fs::create_dir_all(dir).unwrap();
+    let out = dir.join(Path::new(entry).file_name().unwrap());
+    std::fs::write(&out, bytes).unwrap();
+    out
+}
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
+}
+
+#[test]
+fn continue_extends_real_clips_and_its_own_bvh_without_a_jump() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    small_dataset(&six_takes(tmp.path()), &ds);
+    let run = tmp.path().join("run");
+    train(&ds, &run);
+    let inputs = tmp.path().join("in");
+    let mb = extract(
+        "cmu-bvh-sample.zip",
+        "cmu-bvh-motionbuilder/02/02_01.bvh",
+        &inputs,
+    );
+    extract(
+        "cmu-asfamc-sample.zip",
+        "all_asfamc/subjects/01/01.asf",
+        &inputs,
+    );
+    let amc = extract(
+        "cmu-asfamc-sample.zip",
+        "all_asfamc/subjects/01/01_01.amc",
+        &inputs,
+    );
+    let daz = extract(
+        "cmu-bvh-daz-sample.zip",
+        "cmu-bvh-daz/08/08_11.bvh",
+        &inputs,
+    );
+    let cont = |input: &Path, out: &Path, extra: &[&str]| {
+        xtask()
+            .arg("continue")
+            .arg("--run")
+            .arg(&run)
+            .arg("--input")
+            .arg(input)
+            .arg("--out")
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let outs = tmp.path().join("out");
+    let mine = outs.join("mb.bvh");
+    for (input, out) in [
+        (&mb, mine.clone()),
+        (&amc, outs.join("amc.bvh")),
+        (&daz, outs.join("daz.bvh")),
+        (&mine, outs.join("again.bvh")),
+    ] {
+        let o = cont(input, &out, &["--seconds", "2"]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(stdout.contains("seam step"), "{stdout}");
+        // The clip as the pipeline sees it, then 2 s (60 frames) more.
+        let (_, _, clip) = mocap_ingest::clip_of_file(input, None, &Default::default()).unwrap();
+        let n = clip.features.len();
+        let expected = mocap_ingest::features::to_global(&clip.features);
+        let back = motion_render::bvh::read_motion(&out, "back").unwrap();
+        assert_eq!(back.poses.len(), n + 60, "{}", out.display());
+        let text = std::fs::read(&out).unwrap();
+        let b = bvh_anim::from_bytes(&text[..]).unwrap();
+        assert_eq!(b.frames().len(), n + 60);
+        // The clip's frames are the clip's, up to the one skeleton a BVH
+        // file has: the mean bone lengths of clip and generated frames
+        // (the model takes its bones from the context: a few mm apart).
+        let worst = (0..n)
+            .flat_map(|f| (0..19).map(move |j| (f, j)))
+            .map(|(f, j)| dist(&back.poses[f][j], &expected[f][j]))
+            .fold(0.0, f64::max);
+        eprintln!("{}: clip frames within {worst:.4} units", out.display());
+        assert!(
+            worst < 0.25,
+            "{}: clip frames moved by {worst}",
+            out.display()
+        );
+        // No jump at the seam: joints step no further there than the clip's
+        // largest step or the generated motion's next steps, give or take a
+        // quarter (without the easing in the model, 4.7 times that here).
+        let step = |f: usize| -> f64 {
+            (0..19)
+                .map(|j| dist(&back.poses[f][j], &back.poses[f - 1][j]))
+                .sum::<f64>()
+                / 19.0
+        };
+        let clip_max = (1..n).map(step).fold(0.0, f64::max);
+        let next: Vec<f64> = (n + 1..n + 6).map(step).collect();
+        let around = next.iter().copied().fold(clip_max, f64::max);
+        assert!(
+            step(n) <= 1.25 * around,
+            "{}: the seam steps {} (clip's largest step {clip_max}, next frames {next:?})",
+            out.display(),
+            step(n)
+        );
+    }
+    // Variations: one file per seed, the same clip, different futures;
+    // the same seed gives the same bytes.
+    let o = cont(
+        &mb,
+        &outs.join("v.bvh"),
+        &["--seconds", "1", "--variations", "2", "--seed", "5"],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: Vec<Vec<u8>> = ["v_0.bvh", "v_1.bvh"]
+        .iter()
+        .map(|f| std::fs::read(outs.join(f)).unwrap())
+        .collect();
+    assert_ne!(v[0], v[1]);
+    let o = cont(&mb, &outs.join("w.bvh"), &["--seconds", "1", "--seed", "5"]);
+    assert!(o.status.success());
+    assert_eq!(std::fs::read(outs.join("w.bvh")).unwrap(), v[0]);
+    // Clear errors.
+    let err = |o: std::process::Output| {
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let e = err(cont(&mb, &outs.join("x.bvh"), &["--seconds", "0"]));
+    assert!(e.contains("--seconds must be positive"), "{e}");
+    let e = err(cont(&tmp.path().join("none.bvh"), &outs.join("x.bvh"), &[]));
+    assert!(e.contains("none.bvh") && e.contains("no such file"), "{e}");
+    let bad = inputs.join("bad.bvh");
+    std::fs::write(&bad, "HIERARCHY\nROOT Hips {\n").unwrap();
+    let e = err(cont(&bad, &outs.join("x.bvh"), &[]));
+    assert!(e.contains("bad.bvh"), "{e}");
+    // One frame: the T-pose line and a single frame of 02_01.
+    let text = std::fs::read_to_string(&mb).unwrap();
+    let (head, motion) = text.split_once("MOTION").unwrap();
+    let lines: Vec<&str> = motion.lines().collect();
+    let frame_time = lines.iter().find(|l| l.starts_with("Frame Time")).unwrap();
+    let body: Vec<&str> = lines
+        .iter()
+        .skip_while(|l| !l.starts_with("Frame Time"))
+        .skip(1)
+        .take(2)
+        .copied()
+        .collect();
+    let short = inputs.join("short.bvh");
+    std::fs::write(
+        &short,
+        format!(
+            "{head}MOTION\nFrames: 2\n{frame_time}\n{}\n",
+            body.join("\n")
+        ),
+    )
+    .unwrap();
+    let e = err(cont(&short, &outs.join("x.bvh"), &[]));
+    assert!(e.contains("short.bvh") || e.contains("at least 2"), "{e}");
+    let o = xtask()
+        .args(["continue", "--run"])
+        .arg(tmp.path().join("no-run"))
+        .arg("--input")
+        .arg(&mb)
+        .arg("--out")
+        .arg(outs.join("x.bvh"))
+        .output()
+        .unwrap();
+    let e = err(o);
+    assert!(e.contains("no checkpoint"), "{e}");
+}

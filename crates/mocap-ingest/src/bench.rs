@@ -70,6 +70,56 @@ pub fn throughput(
     })
 }
 
+/// The `cargo xtask bench-ingest` table: each collection of `sources`
+/// through [`best_throughput`] on one thread and on `cores` (when more than
+/// one), one line per pass, the files that failed named by count.
+pub fn ingest_report(
+    sources: &[PathBuf],
+    cores: usize,
+    repeat: usize,
+) -> Result<String, DatasetError> {
+    use std::fmt::Write;
+    let mut out = format!(
+        "read + FK + 58 features, whole collection, best of {repeat} (input = uncompressed motion + skeleton bytes; frames at the native rate)\n{:<28} {:>7} {:>6} {:>9} {:>10} {:>8} {:>9} {:>13}\n",
+        "source", "threads", "files", "MB", "frames", "seconds", "MB/s", "frames/s"
+    );
+    for path in sources {
+        let source = Source::open(path)?;
+        let takes = source.takes()?;
+        if takes.is_empty() {
+            return Err(DatasetError::Options(format!(
+                "{}: no .bvh or .amc files",
+                path.display()
+            )));
+        }
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into(),
+        );
+        for threads in [1, cores].into_iter().filter(|&t| t == 1 || cores > 1) {
+            let t = best_throughput(&source, &takes, threads, repeat)?;
+            let mb = t.bytes as f64 / 1e6;
+            let _ = writeln!(
+                out,
+                "{name:<28} {threads:>7} {:>6} {mb:>9.1} {:>10} {:>8.3} {:>9.1} {:>13.0}",
+                t.files,
+                t.native_frames,
+                t.seconds,
+                mb / t.seconds,
+                t.native_frames as f64 / t.seconds
+            );
+            if t.failed > 0 {
+                let _ = writeln!(
+                    out,
+                    "  ({} files failed; run `cargo xtask inspect FILE` on them)",
+                    t.failed
+                );
+            }
+        }
+    }
+    Ok(out)
+}
+
 /// The fastest of `repeat` passes of [`throughput`].
 pub fn best_throughput(
     source: &Source,

@@ -29,7 +29,8 @@ pub use skeleton::{Pose, SkeletonKind, JOINT_NAMES, NUM_JOINTS};
 use asf::{AmcMotion, AsfOptions, AsfSkeleton};
 use bvh::BvhMotion;
 use fps::FrameRateTable;
-use source::{FileRef, Format, Source, SourceReader, TakeInput};
+use source::{FileRef, Format, Source, SourceError, SourceReader, TakeInput};
+use std::path::{Path, PathBuf};
 
 /// A parsed motion at its native frame rate.
 #[derive(Clone, Debug)]
@@ -214,4 +215,90 @@ pub fn process_take_with(
         }
     };
     clip_from_motion(&file, &take.take_id, &motion, options)
+}
+
+/// Why one motion file could not be turned into features ([`clip_of_file`]).
+#[derive(Debug, thiserror::Error)]
+pub enum FileError {
+    /// The file or its directory cannot be listed.
+    #[error(transparent)]
+    Source(#[from] SourceError),
+    /// The path is not a `.bvh` or `.amc` file.
+    #[error("{}: not a .bvh or .amc file", .0.display())]
+    NotMotion(PathBuf),
+    /// The file (or its ASF) cannot be read or turned into features.
+    #[error(transparent)]
+    Ingest(#[from] IngestError),
+}
+
+/// One motion file (a `.bvh`, or an `.amc` with its ASF found as
+/// [`Source::takes`] finds it, else `asf`) read and turned into features the
+/// way `cargo xtask dataset` turns a take; with the collection (its
+/// directory) and the take it is.
+pub fn clip_of_file(
+    file: &Path,
+    asf: Option<PathBuf>,
+    options: &Options,
+) -> Result<(Source, TakeInput, Clip), FileError> {
+    if !file.is_file() {
+        return Err(SourceError::NotFound(file.to_path_buf()).into());
+    }
+    let not_motion = || FileError::NotMotion(file.to_path_buf());
+    let dir = match file.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let name = file.file_name().ok_or_else(not_motion)?.to_string_lossy();
+    let source = Source::open(dir)?.with_fallback_asf(asf);
+    let take = source
+        .takes()?
+        .into_iter()
+        .find(|t| t.motion.name == name)
+        .ok_or_else(not_motion)?;
+    let mut reader = source.reader()?;
+    let clip = process_take(&source, &mut reader, &take, options)?;
+    Ok((source, take, clip))
+}
+
+/// What `cargo xtask inspect` prints about one motion file: the take, its
+/// ASF, skeleton, frames before and after resampling, and the range of every
+/// feature ([`clip_of_file`]).
+pub fn describe_file(
+    file: &Path,
+    asf: Option<PathBuf>,
+    options: &Options,
+) -> Result<String, FileError> {
+    use std::fmt::Write;
+    let (source, take, clip) = clip_of_file(file, asf, options)?;
+    let mut out = format!("file:          {}\n", file.display());
+    let _ = writeln!(
+        out,
+        "take:          {} (subject {})",
+        clip.take_id, take.subject
+    );
+    if let Some(asf) = &take.asf {
+        let _ = writeln!(
+            out,
+            "asf:           {} ({})",
+            source.display_file(asf),
+            take.asf_search
+        );
+    }
+    let _ = writeln!(out, "skeleton:      {}", clip.skeleton.name());
+    let _ = writeln!(
+        out,
+        "frames:        {} at {} fps → {} at {} fps",
+        clip.native_frames,
+        clip.source_fps,
+        clip.features.len(),
+        options.target_fps
+    );
+    out.push_str("feature                 min       mean        max\n");
+    for (n, [lo, mean, hi]) in features::feature_names()
+        .iter()
+        .zip(features::ranges(&clip.features))
+    {
+        let _ = writeln!(out, "{n:<16} {lo:>10.4} {mean:>10.4} {hi:>10.4}");
+    }
+    Ok(out)
 }

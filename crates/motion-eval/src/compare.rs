@@ -2,6 +2,7 @@
 //! evaluated, and one results page (mean ± std over the seeds, the goals
 //! each model meets, training time, contact sheets).
 
+use crate::horizon::{misses, Horizon, HorizonOptions, MEASURES as HORIZON_MEASURES};
 use crate::report::{report, Contexts, EvalReport};
 use crate::run::RunSpec;
 use crate::samples::{write_samples, SampleOptions};
@@ -26,7 +27,17 @@ pub struct CompareOptions {
     pub epochs: Option<usize>,
     /// The results page (contact sheets go to `images/results/` beside it).
     pub page: PathBuf,
+    /// Also roll each run out for a minute from training contexts and
+    /// measure every stretch (`eval --horizon`).
+    pub horizon: Option<HorizonOptions>,
+    /// Read each run's report from its `compare-eval.json` when there is
+    /// one instead of evaluating it again (written on every evaluation; the
+    /// caller vouches that evaluation has not changed since).
+    pub reuse_reports: bool,
 }
+
+/// The file each evaluated run's report is kept in.
+pub const REPORT_FILE: &str = "compare-eval.json";
 
 /// Train (or reuse) and evaluate every model × seed of `o`, then write the
 /// results page; returns its Markdown. `log` hears one line per step.
@@ -64,8 +75,20 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
             }
             let seconds = train_seconds(&dir).unwrap_or(started.elapsed().as_secs_f64());
             let spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
-            let report = report(&spec, Contexts::Split, None)
-                .map_err(|e| e.within(format!("evaluating {}", dir.display())))?;
+            let kept = dir.join(REPORT_FILE);
+            let report = match std::fs::read_to_string(&kept) {
+                Ok(text) if o.reuse_reports => {
+                    log(&format!("{name} seed {seed}: reusing {}", kept.display()));
+                    serde_json::from_str(&text)?
+                }
+                _ => {
+                    let r = report(&spec, Contexts::Split, o.horizon)
+                        .map_err(|e| e.within(format!("evaluating {}", dir.display())))?;
+                    let json = serde_json::to_string_pretty(&r)? + "\n";
+                    motion_render::write_file(&kept, json.as_bytes())?;
+                    r
+                }
+            };
             log(&format!(
                 "{name} seed {seed}: jerk {:.2}x, bone cv {:.2} %, APD {:.2}x, Fréchet {:.1}",
                 report.generated.jerk_m_s3 / report.real.jerk_m_s3,
@@ -73,6 +96,14 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                 report.generated.apd_m / report.real.apd_m,
                 report.frechet_generated
             ));
+            if let Some(h) = &report.horizon {
+                let bad = h.stretches.iter().filter(|st| !misses(h, st).is_empty());
+                log(&format!(
+                    "{name} seed {seed}: {} of {} stretches of the minute miss a band",
+                    bad.count(),
+                    h.stretches.len()
+                ));
+            }
             if seed == 0 {
                 let samples = dir.join("samples");
                 let sheet = SampleOptions {
@@ -248,7 +279,8 @@ pub fn mean_report(runs: &[SeedRun]) -> Result<EvalReport, EvalError> {
 }
 
 /// JSON values of one shape averaged: real numbers that differ become their
-/// mean; objects are averaged key by key; anything else (integers, arrays,
+/// mean; objects, and arrays of objects of one length, are averaged key by
+/// key and element by element; anything else (integers, other arrays,
 /// strings) is the first's.
 fn average(values: &[serde_json::Value]) -> serde_json::Value {
     use serde_json::Value;
@@ -262,6 +294,23 @@ fn average(values: &[serde_json::Value]) -> serde_json::Value {
                 })
                 .collect(),
         ),
+        // Arrays of objects of one length (the stretches of a minute):
+        // element by element.
+        Value::Array(first)
+            if first.iter().all(Value::is_object)
+                && values
+                    .iter()
+                    .all(|v| v.as_array().is_some_and(|a| a.len() == first.len())) =>
+        {
+            Value::Array(
+                (0..first.len())
+                    .map(|i| {
+                        let each: Vec<Value> = values.iter().map(|v| v[i].clone()).collect();
+                        average(&each)
+                    })
+                    .collect(),
+            )
+        }
         // Real numbers that differ: their mean. Integers (counts, epochs)
         // stay the first's, so they still read back as integers.
         Value::Number(_)
@@ -325,6 +374,12 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
         a.seeds,
         a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default()
     );
+    s += "Which split each choice was made on: every run's `best` checkpoint is chosen by the judge on \
+          training windows (with `val` as its Fréchet reference); the parts of the default model and their \
+          settings (issue 11) were chosen on the `test` split, which is slower than the data (issue 24); the \
+          seam easing and restarting ([training.md](training.md)) were judged on generation from training \
+          contexts and the `test` continuation together. Every table reports `test` or, for the minute, all \
+          real windows.\n\n";
     s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
     for (name, _) in table {
         let what = motion_vrnn::model::MODELS
@@ -372,11 +427,132 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
         }
         s += "\n";
     }
+    s += &minute(table, &means);
     s += "\n## Contact sheets (seed 0: 12 generated motions of 128 frames, 5 columns from the first frame to the last, labelled in seconds)\n\n";
     for (name, _) in table {
         let _ = writeln!(s, "### `{name}`\n\n![{name}](images/results/{name}.png)\n");
     }
     Ok(s)
+}
+
+/// The long-horizon section: per model, its first and last stretch of a
+/// minute from training contexts (mean ± std over seeds, as ÷ all real
+/// windows), and the goal of issue 24 §2 stretch by stretch.
+fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
+    let Some(h0) = means.iter().find_map(|m| m.horizon.as_ref()) else {
+        return String::new();
+    };
+    let mut s = format!(
+        "\n## A minute from training contexts (issue 24)\n\n\
+         Each run rolls {} motions out for {:.0} s, each continuing the first 16 frames of a random \
+         training window (`eval --horizon`, sampling seed 0), cuts them into {}-frame stretches, re-bases \
+         each to its own start and measures it against all {} real windows of the dataset (generated ÷ real; \
+         Fréchet against the test windows, reference {:.1}). The first stretch is the 4-second motion from \
+         training contexts, the last ends the minute. Mean ± std over the seeds; the first row gives the range \
+         of each ratio for draws of real windows of the same size.\n\n| model, stretch |",
+        h0.motions, h0.seconds, h0.frames, h0.real_windows, h0.frechet_reference
+    );
+    for (name, _) in HORIZON_MEASURES {
+        let _ = write!(s, " {name} |");
+    }
+    s += " bone cv % | Fréchet |\n|---|";
+    s += &"---|".repeat(HORIZON_MEASURES.len() + 2);
+    s += "\n| real vs real |";
+    for sp in &h0.real_spread {
+        let _ = write!(s, " {:.2}–{:.2} |", sp.lo, sp.hi);
+    }
+    s += " | |\n";
+    let horizons = |runs: &[SeedRun]| -> Vec<Horizon> {
+        runs.iter()
+            .filter_map(|r| r.report.horizon.clone())
+            .collect()
+    };
+    for (name, runs) in table {
+        let hs = horizons(runs);
+        let Some(n) = hs.first().map(|h| h.stretches.len()) else {
+            continue;
+        };
+        for k in [0, n - 1] {
+            let st = &hs[0].stretches[k];
+            let _ = write!(
+                s,
+                "| `{name}` {:.1}–{:.1} s |",
+                st.start_s,
+                st.start_s + hs[0].frames as f64 / 30.0
+            );
+            let cell = |v: Vec<f64>, p: usize| {
+                let (m, sd) = mean_std(&v);
+                format!(" {m:.p$} ± {sd:.p$} |")
+            };
+            for (_, f) in HORIZON_MEASURES {
+                s += &cell(
+                    hs.iter()
+                        .map(|h| f(&h.stretches[k].generated) / f(&h.real))
+                        .collect(),
+                    2,
+                );
+            }
+            s += &cell(
+                hs.iter()
+                    .map(|h| 100.0 * h.stretches[k].generated.bone_cv)
+                    .collect(),
+                2,
+            );
+            s += &cell(hs.iter().map(|h| h.stretches[k].frechet).collect(), 1);
+            s += "\n";
+        }
+    }
+    s += "\n### Goal of issue 24 §2: every stretch of the minute within the bands\n\n\
+          Bands: jerk 0.67–1.5× (generated, and the reconstruction's), bone cv ≤ 1 %, contact 0.75–1.25×, \
+          skating in contact ≤ 2×, APD 0.75–1.25×, hips height and speed 0.75–1.25× (whole stretch and \
+          last 32 frames), turning 0.67–1.5×, Fréchet ≤ train-vs-test. On the mean over the seeds every \
+          stretch must pass; the first stretch must pass on every seed.\n\n\
+          | model | stretches passing (mean of seeds) | bands missed, mean of seeds (stretches) | first stretch, seed by seed |\n|---|---|---|---|\n";
+    for ((name, runs), mean) in table.iter().zip(means) {
+        let Some(h) = &mean.horizon else { continue };
+        let recon_ok =
+            |r: &EvalReport| (0.67..=1.5).contains(&(r.reconstructed.jerk_m_s3 / r.real.jerk_m_s3));
+        let mut missed: Vec<(&str, usize)> = Vec::new();
+        let mut passing = 0;
+        for st in &h.stretches {
+            let m = misses(h, st);
+            passing += usize::from(m.is_empty() && recon_ok(mean));
+            for b in m {
+                match missed.iter_mut().find(|x| x.0 == b) {
+                    Some(x) => x.1 += 1,
+                    None => missed.push((b, 1)),
+                }
+            }
+        }
+        if !recon_ok(mean) {
+            missed.push(("reconstruction jerk", h.stretches.len()));
+        }
+        let seeds: Vec<String> = runs
+            .iter()
+            .filter_map(|r| {
+                let h = r.report.horizon.as_ref()?;
+                let m = misses(h, h.stretches.first()?);
+                let ok = m.is_empty() && recon_ok(&r.report);
+                Some(match ok {
+                    true => format!("{}✓", r.seed),
+                    false => format!("{}✗ ({})", r.seed, m.join(", ")),
+                })
+            })
+            .collect();
+        let missed: Vec<String> = missed.iter().map(|(b, n)| format!("{b} ({n})")).collect();
+        let _ = writeln!(
+            s,
+            "| `{name}` | {passing} of {} | {} | {} |",
+            h.stretches.len(),
+            if missed.is_empty() {
+                "none".into()
+            } else {
+                missed.join("; ")
+            },
+            seeds.join(" · ")
+        );
+    }
+    s
 }
 
 #[cfg(test)]
@@ -390,10 +566,14 @@ mod tests {
         let b = json!({"epoch": 330, "split": "test", "generated": {"apd_m": 2.0}, "d": [3.0]});
         let c = json!({"epoch": 245, "split": "test", "generated": {"apd_m": 6.0}, "d": [5.0]});
         // Integers stay the first's (they deserialise into usize); arrays
-        // too.
+        // of numbers too.
         assert_eq!(
             average(&[a, b, c]),
             json!({"epoch": 250, "split": "test", "generated": {"apd_m": 3.0}, "d": [1.0]})
         );
+        // Arrays of objects of one length average element by element.
+        let a = json!({"s": [{"x": 1.0}, {"x": 2.0}]});
+        let b = json!({"s": [{"x": 3.0}, {"x": 6.0}]});
+        assert_eq!(average(&[a, b]), json!({"s": [{"x": 2.0}, {"x": 4.0}]}));
     }
 }

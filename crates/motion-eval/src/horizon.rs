@@ -170,6 +170,56 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
     })
 }
 
+/// A band of the long-horizon goal (issue 24 §2): the measure's name and
+/// whether a stretch's `generated ÷ real` (or value) meets it.
+pub type Band = (&'static str, fn(&Horizon, &Stretch) -> bool);
+
+/// Ratio of a measure of a stretch to all real windows.
+fn ratio(h: &Horizon, st: &Stretch, f: fn(&MotionStats) -> f64) -> f64 {
+    f(&st.generated) / f(&h.real)
+}
+
+/// The bands every stretch of a minute must meet (`docs/metrics.md`,
+/// "Goals"); the reconstruction's jerk is checked once per run, not here.
+pub const BANDS: [Band; 9] = [
+    ("jerk 0.67–1.5×", |h, s| {
+        (0.67..=1.5).contains(&ratio(h, s, |m| m.jerk_m_s3))
+    }),
+    ("bone cv ≤ 1 %", |_, s| s.generated.bone_cv <= 0.01),
+    ("contact 0.75–1.25×", |h, s| {
+        near(ratio(h, s, |m| m.contact_share))
+    }),
+    ("skating ≤ 2×", |h, s| {
+        ratio(h, s, |m| m.skate_in_contact) <= 2.0
+    }),
+    ("APD 0.75–1.25×", |h, s| near(ratio(h, s, |m| m.apd_m))),
+    ("hips height 0.75–1.25× (whole, last 32)", |h, s| {
+        near(ratio(h, s, |m| m.hip_height_m)) && near(ratio(h, s, |m| m.hip_height_end_m))
+    }),
+    ("hips speed 0.75–1.25× (whole, last 32)", |h, s| {
+        near(ratio(h, s, |m| m.root_speed_m_s)) && near(ratio(h, s, |m| m.root_speed_end_m_s))
+    }),
+    ("turning 0.67–1.5×", |h, s| {
+        (0.67..=1.5).contains(&ratio(h, s, |m| m.turning_deg_s))
+    }),
+    ("Fréchet ≤ train-vs-test", |h, s| {
+        s.frechet <= h.frechet_reference
+    }),
+];
+
+fn near(x: f64) -> bool {
+    (0.75..=1.25).contains(&x)
+}
+
+/// The bands `st` misses.
+pub fn misses(h: &Horizon, st: &Stretch) -> Vec<&'static str> {
+    BANDS
+        .iter()
+        .filter(|(_, ok)| !ok(h, st))
+        .map(|b| b.0)
+        .collect()
+}
+
 /// The long-horizon table in Markdown: one row per stretch, each measure as
 /// generated ÷ all real windows, the real-vs-real range in the header.
 pub fn markdown(h: &Horizon) -> String {
@@ -219,4 +269,68 @@ pub fn markdown(h: &Horizon) -> String {
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stats(scale: f64) -> MotionStats {
+        MotionStats {
+            motions: 4,
+            apd_m: 0.6,
+            jerk_m_s3: 160.0,
+            contact_share: 0.7,
+            skate_in_contact: 0.1,
+            hip_height_m: 0.9,
+            hip_height_end_m: 0.9,
+            root_speed_m_s: 0.25 * scale,
+            root_speed_end_m_s: 0.25,
+            turning_deg_s: 50.0,
+            ..MotionStats::default()
+        }
+    }
+
+    fn horizon(stretch: MotionStats, frechet: f64) -> Horizon {
+        Horizon {
+            seconds: 4.27,
+            motions: 4,
+            frames: 128,
+            real_windows: 8,
+            real: stats(1.0),
+            real_spread: Vec::new(),
+            frechet_reference: 70.0,
+            stretches: vec![Stretch {
+                start_s: 0.0,
+                generated: stretch,
+                frechet,
+            }],
+        }
+    }
+
+    #[test]
+    fn a_stretch_misses_exactly_the_bands_it_leaves() {
+        let h = horizon(stats(1.0), 60.0);
+        assert!(misses(&h, &h.stretches[0]).is_empty());
+        // Hips 1.3× as fast over the whole stretch (not the last 32 frames),
+        // uneven bones and a Fréchet distance above the reference.
+        let h = horizon(
+            MotionStats {
+                bone_cv: 0.02,
+                ..stats(1.3)
+            },
+            80.0,
+        );
+        assert_eq!(
+            misses(&h, &h.stretches[0]),
+            [
+                "bone cv ≤ 1 %",
+                "hips speed 0.75–1.25× (whole, last 32)",
+                "Fréchet ≤ train-vs-test"
+            ]
+        );
+        // The bands' edges are inside: 1.25× speed passes.
+        let h = horizon(stats(1.25), 60.0);
+        assert!(misses(&h, &h.stretches[0]).is_empty());
+    }
 }

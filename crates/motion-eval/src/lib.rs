@@ -9,6 +9,7 @@
 //!   stretch against every real window.
 //! - [`samples`]: the files `cargo xtask sample` writes (Parquet, JSON,
 //!   BVH, contact sheet, animations, the 3-D viewer).
+//! - [`continuation`]: a user's clip continued by a run's model.
 //! - [`compare`]: every model trained with several seeds, evaluated, and
 //!   the results page (mean ± std over seeds, goals met).
 //! - [`chart`]: a run's loss curves as a picture.
@@ -18,6 +19,7 @@
 
 pub mod chart;
 pub mod compare;
+pub mod continuation;
 pub mod horizon;
 pub mod report;
 pub mod run;

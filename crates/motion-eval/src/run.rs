@@ -27,6 +27,9 @@ pub struct RunSpec {
     pub context: usize,
     /// Sampling temperature instead of the model's own.
     pub temperature: Option<f64>,
+    /// Frames per run of the recurrence instead of the model's own
+    /// (`Some(0)`: one run; see `Parts::restart`).
+    pub restart: Option<usize>,
 }
 
 impl RunSpec {
@@ -41,6 +44,7 @@ impl RunSpec {
             split: "test".into(),
             context: generate::CONTEXT,
             temperature: None,
+            restart: None,
         }
     }
 }
@@ -80,6 +84,9 @@ impl Run {
                 .model
                 .set_temperature(Some(t))
                 .map_err(|e| EvalError::Invalid(format!("--temperature: {e}")))?;
+        }
+        if let Some(r) = spec.restart {
+            model.model.set_restart(Some(r));
         }
         let dir = spec
             .data

@@ -181,6 +181,36 @@ pub struct RoundTrip {
     pub residual_max: f64,
 }
 
+/// The BVH round-trip table `sample` and `export` print: per set, the
+/// worst and mean joint distance of the files read back, and the part
+/// bone-length variation explains.
+pub fn round_trip_table(sets: &[(&str, Vec<RoundTrip>)]) -> String {
+    use std::fmt::Write;
+    // Fixed above 0.01, else scientific.
+    let dist = |v: f64| match v >= 0.01 {
+        true => format!("{v:.3}"),
+        false => format!("{v:.1e}"),
+    };
+    let mut out = format!(
+        "BVH read back with mocap-ingest (joint distance to the motion, CMU units; x0.0564 = m):\n  {:<14} {:>7} {:>10} {:>10} {:>16} {:>16}\n",
+        "set", "motions", "max", "mean", "bone-length max", "unexplained max"
+    );
+    for (name, t) in sets {
+        let max = |f: fn(&RoundTrip) -> f64| t.iter().map(f).fold(0.0, f64::max);
+        let mean = t.iter().map(|r| r.mean).sum::<f64>() / t.len().max(1) as f64;
+        let _ = writeln!(
+            out,
+            "  {name:<14} {:>7} {:>10} {:>10} {:>16} {:>16}",
+            t.len(),
+            dist(max(|r| r.max)),
+            dist(mean),
+            dist(max(|r| r.bone_max)),
+            dist(max(|r| r.residual_max))
+        );
+    }
+    out
+}
+
 /// Read `text` (the BVH of `m`) back with `mocap_ingest` and compare.
 pub fn round_trip(m: &Motion, text: &str) -> Result<RoundTrip, RenderError> {
     use mocap_ingest::math::{norm, sub};

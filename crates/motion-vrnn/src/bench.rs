@@ -171,3 +171,98 @@ pub fn speedup_bound(self_feed: f64, batch: usize) -> f64 {
         (true, false) => 3.0,
     }
 }
+
+/// The `bench-train` report, line by line to `out`: seconds per training
+/// step (forward, backward, Adam) of each model of `models` (every model of
+/// [`crate::model::MODELS`] when empty) at each batch size on random
+/// windows, and the sampling time; with `reference`, also through candle
+/// ops (autograd); with `pytorch = (python, script)`, every model against
+/// PyTorch eager on the paper's model ([`against_pytorch`]).
+pub fn report(
+    models: &[String],
+    batches: &[usize],
+    steps: usize,
+    reference: bool,
+    pytorch: Option<(&Path, &Path)>,
+    device: &Device,
+    out: &mut dyn FnMut(&str),
+) -> Result<(), TrainError> {
+    let every: Vec<String> = crate::model::MODELS
+        .iter()
+        .map(|m| m.0.to_string())
+        .collect();
+    let models = if models.is_empty() { &every } else { models };
+    let steps = steps.max(1);
+    out(&format!(
+        "training step (T = {FRAMES}, forward + backward + Adam) on {device:?}, {} rayon threads; median and min of {steps} steps after 2 warm-up steps",
+        rayon::current_num_threads()
+    ));
+    out(&format!(
+        "{:>9} {:>9} {:>6} {:>10} {:>10} {:>16} {:>12}",
+        "model", "path", "batch", "median s", "min s", "windows*frames/s", "sample 36 s"
+    ));
+    let mut fused = Vec::new();
+    for name in models {
+        for r in time_steps(name, batches, steps, reference, device)? {
+            out(&format!(
+                "{:>9} {:>9} {:>6} {:>10.4} {:>10.4} {:>16.0} {:>12.4}",
+                r.model,
+                r.path,
+                r.batch,
+                r.median,
+                r.min,
+                (r.batch * FRAMES) as f64 / r.median,
+                r.sample
+            ));
+            if r.path == "fused" {
+                fused.push(r);
+            }
+        }
+    }
+    if let Some((python, script)) = pytorch {
+        against_pytorch(python, script, &fused, batches, steps, out)?;
+    }
+    Ok(())
+}
+
+/// Every model against PyTorch eager running the paper's model on this
+/// machine (the faster of its two forms at each batch size), with the
+/// speed bounds of issue 11 ([`speedup_bound`]).
+fn against_pytorch(
+    python: &Path,
+    script: &Path,
+    rows: &[StepTiming],
+    batches: &[usize],
+    steps: usize,
+    out: &mut dyn FnMut(&str),
+) -> Result<(), TrainError> {
+    let threads = rayon::current_num_threads();
+    let stepwise = pytorch_medians(python, script, batches, steps, threads, false)?;
+    let hoisted = pytorch_medians(python, script, batches, steps, threads, true)?;
+    out("");
+    out("PyTorch eager, paper model (xtask/py/pytorch_vrnn_step.py), median s per step:");
+    for ((b, s), (_, h)) in stepwise.iter().zip(&hoisted) {
+        out(&format!("  batch {b:>5}: stepwise {s:.4}, hoisted {h:.4}"));
+    }
+    out("");
+    out(&format!(
+        "{:>9} {:>6} {:>10} {:>11} {:>9} {:>7} {:>4}",
+        "model", "batch", "median s", "PyTorch s", "speed-up", "bound", "met"
+    ));
+    for r in rows {
+        let Some(i) = batches.iter().position(|x| *x == r.batch) else {
+            continue;
+        };
+        let torch = stepwise[i].1.min(hoisted[i].1);
+        let speedup = torch / r.median;
+        let bound = speedup_bound(r.self_feed, r.batch);
+        out(&format!(
+            "{:>9} {:>6} {:>10.4} {torch:>11.4} {speedup:>8.2}x {bound:>6.1}x {:>4}",
+            r.model,
+            r.batch,
+            r.median,
+            if speedup >= bound { "yes" } else { "no" }
+        ));
+    }
+    Ok(())
+}

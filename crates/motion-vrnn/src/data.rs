@@ -1,7 +1,9 @@
 //! Loading the Parquet dataset written by `cargo xtask dataset` (see
-//! `docs/dataset.md`) through polars, normalised with its `stats.json`.
+//! `docs/dataset.md`) through polars, normalised with its `stats.json`,
+//! with the category of every window (from `takes.parquet`).
 
 use candle_core::{Device, Tensor};
+pub use mocap_ingest::category::Category;
 use polars::prelude::*;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -80,6 +82,20 @@ pub struct Dataset {
     pub manifest_sha256: String,
     /// Per split (`train`, `val`, `test`), the windows.
     pub splits: HashMap<String, Windows>,
+    /// Per split, the category of each of its windows (in window order):
+    /// its take's `category` in `takes.parquet`. A dataset without that
+    /// column (formats before 4) or without `takes.parquet` gives
+    /// [`Category::Other`] for every window.
+    pub categories: HashMap<String, Vec<Category>>,
+}
+
+impl Dataset {
+    /// The windows of `split` with their categories (None when the split
+    /// was not loaded or has no windows).
+    pub fn split(&self, split: &str) -> Option<(&Windows, &[Category])> {
+        let w = self.splits.get(split).filter(|w| w.n > 0)?;
+        Some((w, self.categories.get(split).map_or(&[], Vec::as_slice)))
+    }
 }
 
 /// Read `stats.json` of a dataset directory.
@@ -113,7 +129,46 @@ pub fn manifest_sha256(dir: &Path) -> Result<String, DataError> {
         .collect())
 }
 
-/// Load the given splits of a dataset directory.
+/// Take → category from `takes.parquet`; empty when the file or its
+/// `category` column is absent (datasets before format 4).
+fn take_categories(dir: &Path) -> Result<HashMap<String, Category>, DataError> {
+    let p = dir.join("takes.parquet");
+    if !p.is_file() {
+        return Ok(HashMap::new());
+    }
+    let lf = LazyFrame::scan_parquet(
+        PlRefPath::new(p.to_string_lossy().into_owned()),
+        Default::default(),
+    )
+    .map_err(|e| read_err(&p, e))?;
+    let schema = lf.clone().collect_schema().map_err(|e| read_err(&p, e))?;
+    if !schema.contains("category") {
+        return Ok(HashMap::new());
+    }
+    let df = lf
+        .select([col("take"), col("category")])
+        .collect()
+        .map_err(|e| read_err(&p, e))?;
+    let takes = column(&df, "take", &p, |c| c.str().cloned())?;
+    let cats = column(&df, "category", &p, |c| c.str().cloned())?;
+    let mut out = HashMap::new();
+    for (row, (t, c)) in takes.iter().zip(cats.iter()).enumerate() {
+        let (Some(t), Some(c)) = (t, c) else {
+            return Err(DataError::Invalid(format!(
+                "{}: null take or category at row {row}",
+                p.display()
+            )));
+        };
+        let c: Category = c
+            .parse()
+            .map_err(|e| DataError::Invalid(format!("{}: take {t}: {e}", p.display())))?;
+        out.insert(t.to_string(), c);
+    }
+    Ok(out)
+}
+
+/// Load the given splits of a dataset directory, with the category of every
+/// window ([`Dataset::categories`]).
 pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
     let stats = read_stats(dir)?;
     let manifest = manifest_sha256(dir)?;
@@ -163,7 +218,9 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
     let ws = column(&windows, "start", &wpath, |c| c.u32().cloned())?;
     let wl = column(&windows, "length", &wpath, |c| c.u32().cloned())?;
     let wsplit = column(&windows, "split", &wpath, |c| c.str().cloned())?;
+    let take_category = take_categories(dir)?;
     let mut out: HashMap<String, Windows> = HashMap::new();
+    let mut categories: HashMap<String, Vec<Category>> = HashMap::new();
     for i in 0..windows.height() {
         let (Some(take), Some(start), Some(len), Some(split)) =
             (wt.get(i), ws.get(i), wl.get(i), wsplit.get(i))
@@ -200,6 +257,17 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
             w.data.extend(cols.iter().map(|c| c[r]));
         }
         w.n += 1;
+        let category = if take_category.is_empty() {
+            Category::Other
+        } else {
+            *take_category.get(take).ok_or_else(|| {
+                DataError::Invalid(format!("window of take {take}, which takes.parquet lacks"))
+            })?
+        };
+        categories
+            .entry(split.to_string())
+            .or_default()
+            .push(category);
     }
     if let Some(bad) = out.values().flat_map(|w| &w.data).find(|v| !v.is_finite()) {
         return Err(DataError::Invalid(format!(
@@ -212,5 +280,6 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
         stats,
         manifest_sha256: manifest,
         splits: out,
+        categories,
     })
 }

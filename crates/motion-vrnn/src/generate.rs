@@ -58,8 +58,10 @@ pub const CONTEXT: usize = 16;
 /// them through its posterior, so its state and filters start where that
 /// real motion puts them (standing, walking, turning), and the prior
 /// generates every later frame. The motion is the last context frame (the
-/// pose it starts from) and the `frames − 1` frames generated after it; the
-/// other context frames are not part of it. The noise comes from `seed` too,
+/// pose it starts from) and the `frames − 1` frames generated after it,
+/// joined without a jump ([`crate::model::SEAM_FRAMES`]); the other context
+/// frames are not part of it. A model with `Parts::restart` makes a long
+/// motion in runs, each continuing the last `context` frames made. The noise comes from `seed` too,
 /// so the same model and seed give the same motions.
 pub fn sample_windows(
     model: &dyn MotionModel,
@@ -107,15 +109,41 @@ pub fn continue_windows(
             starts.length
         );
     }
-    let (latent, k) = (model.config().latent, context);
-    let eps = noise(seed ^ 0x5A3F1E, 0, frames + k - 1, n, latent, device)?;
-    let start = starts.batch(picks, device)?.narrow(1, 0, k)?;
-    let x = model.sample(&eps, Some(&start))?;
-    let x = x.narrow(1, k - 1, frames)?;
-    let v = x.flatten_all()?.to_vec1::<f32>()?;
-    Ok(v.chunks(frames * starts.features)
-        .map(<[f32]>::to_vec)
-        .collect())
+    let (latent, k, f) = (model.config().latent, context, starts.features);
+    // One run of the recurrence, or runs of `segment` new frames, each
+    // restarting from a fresh state on the last `k` frames made so far.
+    let frames = frames.max(1);
+    let segment = model
+        .config()
+        .parts
+        .restart
+        .filter(|&l| l > 0 && frames > l + 1)
+        .unwrap_or(frames - 1);
+    let mut out: Vec<Vec<f32>> = vec![Vec::with_capacity(frames * f); n];
+    let mut context = starts.batch(picks, device)?.narrow(1, 0, k)?;
+    let mut made = 0;
+    for run in 0u64.. {
+        // New frames of this run; the first run also gives the start frame
+        // (its context's last).
+        let new = segment.min(frames - made.max(1));
+        let eps = noise(seed ^ 0x5A3F1E, run, k + new, n, latent, device)?;
+        let x = model.sample(&eps, Some(&context))?;
+        let x = x.narrow(1, k - 1, new + 1)?;
+        let v = x.flatten_all()?.to_vec1::<f32>()?;
+        for (m, o) in v.chunks((new + 1) * f).zip(out.iter_mut()) {
+            o.extend_from_slice(if made == 0 { m } else { &m[f..] });
+        }
+        made = out[0].len() / f;
+        if made >= frames {
+            break;
+        }
+        let last: Vec<f32> = out
+            .iter()
+            .flat_map(|o| o[(made - k) * f..].iter().copied())
+            .collect();
+        context = candle_core::Tensor::from_vec(last, (n, k, f), device)?;
+    }
+    Ok(out)
 }
 
 /// Sampling seed of the judge: apart from the seeds `cargo xtask eval` and

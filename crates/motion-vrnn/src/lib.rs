@@ -9,7 +9,11 @@
 //!   layers over all rows, the recurrence over whole sequences, the Gaussian
 //!   KL, forward kinematics, a temporal filter), each with a hand-written
 //!   CPU backward tested against autograd.
-//! - [`data`]: the dataset through polars, normalised by its `stats.json`.
+//! - [`data`]: the dataset through polars, normalised by its `stats.json`,
+//!   with each window's category.
+//! - [`classifier`]: a motion classifier trained on real windows per
+//!   category, and the measures made with it (accuracy, Fréchet distance of
+//!   its features, diversity, multimodality).
 //! - [`generate`]: motions sampled from a model, back in global positions,
 //!   and the [`generate::Judge`] that chooses checkpoints by them.
 //! - [`optim`]: Adam with saveable state; gradient-norm clipping.
@@ -22,6 +26,7 @@
 
 pub mod bench;
 pub mod blocks;
+pub mod classifier;
 pub mod data;
 pub mod error;
 pub mod generate;

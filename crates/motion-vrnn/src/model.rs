@@ -119,6 +119,13 @@ pub struct Parts {
     /// when generating (None: 1). Training and the ELBO do not use it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub temperature: Option<f64>,
+    /// Generation in runs of at most this many new frames: after each, the
+    /// recurrence restarts from a fresh state, reading the last frames made
+    /// as its context, so it never runs far longer than the windows it was
+    /// trained on (None: one run however long the motion). Training and
+    /// the ELBO do not use it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub restart: Option<usize>,
 }
 
 impl Parts {
@@ -178,6 +185,25 @@ pub const SELF_FEED: f64 = 0.5;
 
 /// The sampling temperature of `motion` ([`Parts::temperature`]).
 pub const MOTION_TEMPERATURE: f64 = 0.7;
+
+/// Generated frames over which a motion leaves its real start frames
+/// ([`MotionModel::sample`]): a third of a second at 30 fps. The decoder's
+/// pose at the last start frame is off the real pose by its reconstruction
+/// error, and the generated poses carry that offset (about twice a frame's
+/// motion on the default model), so the first generated frame would jump.
+/// The offset is added to the decoded poses and faded out over these frames
+/// with a raised cosine, before the skeleton and the feet (bones stay rigid,
+/// the root moves with the eased feet); nothing changes after the fade
+/// (inertialization, as game animation blends one clip into the next).
+pub const SEAM_FRAMES: usize = 10;
+
+/// The weight of the seam's offset `t` frames after the start frames.
+fn seam_weight(t: usize) -> f64 {
+    if t >= SEAM_FRAMES {
+        return 0.0;
+    }
+    0.5 * (1.0 + (std::f64::consts::PI * t as f64 / SEAM_FRAMES as f64).cos())
+}
 
 impl Config {
     /// The model called `name` in [`MODELS`].
@@ -574,6 +600,12 @@ impl Vrnn {
 
     /// Sample at temperature `t` ([`Parts::temperature`]; None: 1) instead
     /// of the one the model was trained with.
+    /// Generate in runs of at most `frames` new frames ([`Parts::restart`];
+    /// None or 0: one run).
+    pub fn set_restart(&mut self, frames: Option<usize>) {
+        self.config.parts.restart = frames.filter(|&f| f > 0);
+    }
+
     pub fn set_temperature(&mut self, t: Option<f64>) -> Result<()> {
         positive("temperature", t)?;
         self.config.parts.temperature = t;
@@ -654,6 +686,17 @@ impl Vrnn {
     }
 
     /// The mean skeleton for `b` sequences (sampling): `[b, 18]`.
+    /// `x − o` over the pose features of a real frame `x: [B, input]` and
+    /// the decoder's output `o: [B, ≥ input]` for it (zero on the root
+    /// motion, the last three features, and on what `o` has beyond them).
+    fn pose_offset(&self, x: &Tensor, o: &Tensor) -> Result<Tensor> {
+        let (b, width) = o.dims2()?;
+        let pose = self.config.input.saturating_sub(3);
+        let d = (x.narrow(1, 0, pose)? - o.narrow(1, 0, pose)?)?;
+        let rest = Tensor::zeros((b, width - pose), DType::F32, o.device())?;
+        Tensor::cat(&[&d, &rest], 1)
+    }
+
     fn mean_bones(&self, b: usize, device: &Device) -> Result<Option<Tensor>> {
         match self
             .config
@@ -741,6 +784,8 @@ impl MotionModel for Vrnn {
         let mut cell = h.clone();
         let (mut zf, mut of): (Option<Tensor>, Option<Tensor>) = (None, None);
         let mut frames = Vec::with_capacity(t);
+        // The last start frame's pose minus the decoder's ([`SEAM_FRAMES`]).
+        let mut seam: Option<Tensor> = None;
         // One step of a causal filter with pole `rho` (the first value as is).
         let step_filter = |prev: &Option<Tensor>, x: Tensor, rho: f64| -> Result<Tensor> {
             match prev {
@@ -775,9 +820,18 @@ impl MotionModel for Vrnn {
             // the history it has in training.
             let o = step_filter(&of, self.decode_raw(&zd, &h)?, rho_out)?;
             let (x, feat) = match real {
-                Some(r) => r,
+                Some(r) => {
+                    if step + 1 == k {
+                        seam = Some(self.pose_offset(&r.0, &o)?);
+                    }
+                    r
+                }
                 None => {
-                    let mut x = self.finish(&o, bones.as_ref())?;
+                    let eased = match &seam {
+                        Some(d) if step - k < SEAM_FRAMES => (&o + (d * seam_weight(step - k))?)?,
+                        _ => o.clone(),
+                    };
+                    let mut x = self.finish(&eased, bones.as_ref())?;
                     if let (Some(prev), Some(l), Some(body)) =
                         (frames.last(), self.contact_logits(&o)?, &self.config.body)
                     {

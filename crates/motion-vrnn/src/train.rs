@@ -290,7 +290,26 @@ pub fn init_model(config: &Config, seed: u64, device: &Device) -> Result<Trained
     let varmap = VarMap::new();
     let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
     let model = Vrnn::new(config, vb)?;
-    let mut vars = named_vars(&varmap);
+    init_uniform(
+        &varmap,
+        seed,
+        |name| name.starts_with("rnn.").then_some(config.hidden),
+        device,
+    )?;
+    Ok(Trained { varmap, model })
+}
+
+/// Fill every variable of `varmap`, in name order, with
+/// `U(−1/√fan_in, 1/√fan_in)` drawn from `seed`: a `….weight`'s fan-in is
+/// its second dimension, a `….bias` takes its weight's, and `fixed(name)`
+/// overrides both where it returns one.
+pub fn init_uniform(
+    varmap: &VarMap,
+    seed: u64,
+    fixed: impl Fn(&str) -> Option<usize>,
+    device: &Device,
+) -> candle_core::Result<()> {
+    let mut vars = named_vars(varmap);
     vars.sort_by(|a, b| a.0.cmp(&b.0));
     let fan_in: HashMap<String, usize> = vars
         .iter()
@@ -299,12 +318,10 @@ pub fn init_model(config: &Config, seed: u64, device: &Device) -> Result<Trained
         .collect();
     let mut rng = Rng::new(seed, 0x1417);
     for (name, var) in &vars {
-        let fan = if name.starts_with("rnn.") {
-            config.hidden
-        } else {
+        let fan = fixed(name).unwrap_or_else(|| {
             let w = name.replace(".bias", ".weight");
             fan_in.get(&w).copied().unwrap_or(1)
-        };
+        });
         let bound = 1.0 / (fan as f64).sqrt();
         let n = var.elem_count();
         let vals: Vec<f32> = (0..n)
@@ -312,7 +329,7 @@ pub fn init_model(config: &Config, seed: u64, device: &Device) -> Result<Trained
             .collect();
         var.set(&Tensor::from_vec(vals, var.shape(), device)?)?;
     }
-    Ok(Trained { varmap, model })
+    Ok(())
 }
 
 /// The variables of a var map with their names.
@@ -371,26 +388,33 @@ pub fn sharded(
         .fold((0.0, 0.0), |(r, k), p| (r + p.0 .0, k + p.0 .1));
     let grads = match grad {
         None => None,
-        Some((_, vars)) => {
-            let mut store = GradStore::default();
-            for (i, v) in vars.iter().enumerate() {
-                let mut sum: Option<Tensor> = None;
-                for p in &parts {
-                    if let Some(g) = &p.1[i] {
-                        sum = Some(match sum {
-                            None => g.clone(),
-                            Some(s) => (s + g)?,
-                        });
-                    }
-                }
-                if let Some(s) = sum {
-                    store.insert(v, s);
-                }
-            }
-            Some(store)
-        }
+        Some((_, vars)) => Some(sum_gradients(
+            vars,
+            &parts.iter().map(|p| p.1.as_slice()).collect::<Vec<_>>(),
+        )?),
     };
     Ok(((recon as f32, kl as f32), grads))
+}
+
+/// The gradients of shards summed in shard order into one store:
+/// `shards[s][i]` is shard `s`'s gradient of `vars[i]` (None: it has none).
+pub fn sum_gradients(vars: &[Var], shards: &[&[Option<Tensor>]]) -> candle_core::Result<GradStore> {
+    let mut store = GradStore::default();
+    for (i, v) in vars.iter().enumerate() {
+        let mut sum: Option<Tensor> = None;
+        for p in shards {
+            if let Some(g) = &p[i] {
+                sum = Some(match sum {
+                    None => g.clone(),
+                    Some(s) => (s + g)?,
+                });
+            }
+        }
+        if let Some(s) = sum {
+            store.insert(v, s);
+        }
+    }
+    Ok(store)
 }
 
 /// Mean losses over all windows of a split, in batches, with fixed noise.
