@@ -3,35 +3,16 @@
 //! `category` column (format 3) gives `other`, and the classifier trains,
 //! saves and measures a small real dataset.
 
-use integration_tests::{bvh_zip, read_entry};
 use mocap_ingest::category::Category;
-use mocap_ingest::dataset::{build_dataset, DatasetOptions, NoProgress};
-use mocap_ingest::source::Source;
 use motion_vrnn::classifier::{train_and_measure, Classifier, ClassifierTraining};
 use motion_vrnn::data::load;
 use polars::prelude::*;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Takes 02_01 … 02_06 (walk, walk, run, jump, sport, gesture), windows of
 /// 32 frames, half of them train.
-fn small_dataset(dir: &Path) -> PathBuf {
-    let src = dir.join("src");
-    std::fs::create_dir_all(&src).unwrap();
-    for t in ["02_01", "02_02", "02_03", "02_04", "02_05", "02_06"] {
-        let name = format!("cmu-bvh-motionbuilder/02/{t}.bvh");
-        std::fs::write(src.join(format!("{t}.bvh")), read_entry(&bvh_zip(), &name)).unwrap();
-    }
-    let out = dir.join("ds");
-    let opts = DatasetOptions {
-        window: 32,
-        stride: 16,
-        fractions: [0.5, 0.25, 0.25],
-        ..Default::default()
-    };
-    let sources = [Source::open(&src).unwrap()];
-    build_dataset(&sources, &["src".into()], &out, &opts, &NoProgress)
-        .unwrap_or_else(|e| panic!("{e}"));
-    out
+fn small_dataset(dir: &Path) -> std::path::PathBuf {
+    integration_tests::small_dataset(dir, [0.5, 0.25, 0.25])
 }
 
 fn read(path: &Path) -> DataFrame {

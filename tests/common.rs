@@ -130,3 +130,31 @@ pub fn short_takes_options() -> DatasetOptions {
         ..Default::default()
     }
 }
+
+/// A dataset in `dir/ds` from takes 02_01 … 02_06 (copied into `dir/src`):
+/// windows of 32 frames (stride 16), split by `fractions` (train, val, test).
+pub fn small_dataset(dir: &Path, fractions: [f64; 3]) -> PathBuf {
+    let src = dir.join("src");
+    std::fs::create_dir_all(&src).unwrap();
+    for t in ["02_01", "02_02", "02_03", "02_04", "02_05", "02_06"] {
+        let name = format!("cmu-bvh-motionbuilder/02/{t}.bvh");
+        std::fs::write(src.join(format!("{t}.bvh")), read_entry(&bvh_zip(), &name)).unwrap();
+    }
+    let out = dir.join("ds");
+    let opts = DatasetOptions {
+        window: 32,
+        stride: 16,
+        fractions,
+        ..Default::default()
+    };
+    let sources = [mocap_ingest::source::Source::open(&src).unwrap()];
+    mocap_ingest::dataset::build_dataset(
+        &sources,
+        &["src".into()],
+        &out,
+        &opts,
+        &mocap_ingest::dataset::NoProgress,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    out
+}

@@ -1,9 +1,6 @@
 //! End to end: a dataset from a few real CMU files, a few training steps, a
 //! checkpoint that reloads to the same loss; the NaN guard.
 
-use integration_tests::{bvh_zip, read_entry};
-use mocap_ingest::dataset::{build_dataset, DatasetOptions, NoProgress};
-use mocap_ingest::source::Source;
 use motion_vrnn::data::load;
 use motion_vrnn::generate::{sample_windows, Judge};
 use motion_vrnn::train::{
@@ -13,28 +10,7 @@ use motion_vrnn::MotionModel;
 use std::path::Path;
 
 fn small_dataset(dir: &Path) -> std::path::PathBuf {
-    let src = dir.join("src");
-    std::fs::create_dir_all(&src).unwrap();
-    for t in ["02_01", "02_02", "02_03", "02_04", "02_05", "02_06"] {
-        let name = format!("cmu-bvh-motionbuilder/02/{t}.bvh");
-        std::fs::write(src.join(format!("{t}.bvh")), read_entry(&bvh_zip(), &name)).unwrap();
-    }
-    let out = dir.join("ds");
-    let opts = DatasetOptions {
-        window: 32,
-        stride: 16,
-        fractions: [0.5, 0.5, 0.0],
-        ..Default::default()
-    };
-    build_dataset(
-        &[Source::open(&src).unwrap()],
-        &["src".into()],
-        &out,
-        &opts,
-        &NoProgress,
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    out
+    integration_tests::small_dataset(dir, [0.5, 0.5, 0.0])
 }
 
 fn tiny_config() -> TrainConfig {

@@ -18,6 +18,16 @@ fn train(ds: &Path, run: &Path) {
     assert!(ok.success());
 }
 
+/// A small dataset of six real takes and a run trained on it for 2 epochs.
+fn trained_run() -> (tempfile::TempDir, std::path::PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    small_dataset(&six_takes(tmp.path()), &ds);
+    let run = tmp.path().join("run");
+    train(&ds, &run);
+    (tmp, run)
+}
+
 fn apng_frames(path: &Path) -> (u32, u32, u32) {
     let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
     let r = dec.read_info().unwrap();
@@ -76,11 +86,7 @@ fn viewer_in_chromium(samples: &Path, tmp: &Path) {
 #[test]
 fn sample_and_eval_write_what_they_promise() {
     integration_tests::require_samples!();
-    let tmp = tempfile::tempdir().unwrap();
-    let ds = tmp.path().join("ds");
-    small_dataset(&six_takes(tmp.path()), &ds);
-    let run = tmp.path().join("run");
-    train(&ds, &run);
+    let (tmp, run) = trained_run();
 
     let sample = |out: &Path| {
         let o = xtask()
@@ -420,11 +426,7 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 #[test]
 fn continue_extends_real_clips_and_its_own_bvh_without_a_jump() {
     integration_tests::require_samples!();
-    let tmp = tempfile::tempdir().unwrap();
-    let ds = tmp.path().join("ds");
-    small_dataset(&six_takes(tmp.path()), &ds);
-    let run = tmp.path().join("run");
-    train(&ds, &run);
+    let (tmp, run) = trained_run();
     let inputs = tmp.path().join("in");
     let mb = extract(
         "cmu-bvh-sample.zip",
