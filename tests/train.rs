@@ -177,6 +177,17 @@ fn best_is_the_epoch_whose_generated_motion_scores_best() {
     let again = judge.judge(&out.model.model, &dev).unwrap();
     assert_eq!(Some(&again), out.history[3].generated.as_ref());
     assert!(judge.real().contact_share > 0.0 && judge.frechet_ref() > 0.0);
+    // Rolled out for 3 windows, the first stretch is the one-window
+    // verdict's (same noise, same context) and the last one adds its score.
+    let long = Judge::new(&data).unwrap().stretches(3);
+    let v = long.judge(&out.model.model, &dev).unwrap();
+    assert_eq!(v.generated, again.generated);
+    assert_eq!(v.frechet, again.frechet);
+    let (last, last_frechet) = v.last.clone().expect("the last stretch is measured");
+    assert_ne!(last, again.generated);
+    let last_score =
+        motion_metrics::goal_distance(judge.real(), &last, last_frechet, judge.frechet_ref());
+    assert!((v.score - (again.score + last_score)).abs() < 1e-9 * v.score.max(1.0));
 }
 
 #[test]

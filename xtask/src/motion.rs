@@ -81,6 +81,10 @@ pub struct EvalArgs {
     /// Motions rolled out for --horizon.
     #[arg(long, default_value_t = 256)]
     horizon_motions: usize,
+    /// A classifier directory (`train-classifier`): also measure generated
+    /// motion in its feature space.
+    #[arg(long)]
+    classifier: Option<PathBuf>,
     /// Output directory for eval.json and eval.md (default: RUN/eval).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -302,7 +306,7 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         seconds: a.horizon,
         motions: a.horizon_motions,
     });
-    let report = report(&a.run.spec(), a.contexts, horizon)?;
+    let report = report(&a.run.spec(), a.contexts, horizon, a.classifier.as_deref())?;
     for warning in &report.warnings {
         eprintln!("warning: {warning}");
     }

@@ -84,6 +84,10 @@ pub struct TrainArgs {
     /// Epochs between two judgements of generated motion (--select generation).
     #[arg(long)]
     pub judge_every: Option<usize>,
+    /// Window-long stretches the judge rolls its motions out for (scores
+    /// the first and the last; 1: one window).
+    #[arg(long)]
+    pub judge_stretches: Option<usize>,
     /// Continue the run in --out from its `last` checkpoint.
     #[arg(long)]
     pub resume: bool,
@@ -166,6 +170,7 @@ impl TrainArgs {
             early_stopping: self.early_stopping,
             select: self.select,
             judge_every: self.judge_every,
+            judge_stretches: self.judge_stretches,
         }
     }
 }

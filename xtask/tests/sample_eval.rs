@@ -578,3 +578,52 @@ fn continue_extends_real_clips_and_its_own_bvh_without_a_jump() {
     let e = err(o);
     assert!(e.contains("no checkpoint"), "{e}");
 }
+
+#[test]
+fn eval_measures_generated_motion_with_the_classifier() {
+    integration_tests::require_samples!();
+    let (tmp, run) = trained_run();
+    let (ds, clf) = (tmp.path().join("ds"), tmp.path().join("clf"));
+    let o = xtask()
+        .args(["train-classifier", "--epochs", "2", "--data"])
+        .arg(&ds)
+        .arg("--out")
+        .arg(&clf)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let eval = |out: &Path| {
+        let o = xtask()
+            .args(["eval", "--horizon", "0", "--split", "val", "--run"])
+            .arg(&run)
+            .arg("--classifier")
+            .arg(&clf)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read_to_string(out.join("eval.json")).unwrap()
+    };
+    let text = eval(&tmp.path().join("e1"));
+    let j: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let c = &j["classifier"];
+    assert_eq!(c["motions"], 256);
+    for key in ["frechet_generated", "frechet_train"] {
+        assert!(c[key].as_f64().is_some_and(f64::is_finite), "{key}: {c}");
+    }
+    // Every window, real or generated, lands in one category.
+    for key in ["real", "real_recognised", "generated"] {
+        let sum: f64 = c["shares"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s[key].as_f64().unwrap())
+            .sum();
+        assert!((sum - 1.0).abs() < 1e-9, "{key}: {sum}");
+    }
+    let md = std::fs::read_to_string(tmp.path().join("e1/eval.md")).unwrap();
+    assert!(md.contains("Seen by the motion classifier"), "{md}");
+    // The same run, classifier and seed: the same report.
+    assert_eq!(eval(&tmp.path().join("e2")), text);
+}

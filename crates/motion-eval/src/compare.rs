@@ -82,7 +82,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                     serde_json::from_str(&text)?
                 }
                 _ => {
-                    let r = report(&spec, Contexts::Split, o.horizon)
+                    let r = report(&spec, Contexts::Split, o.horizon, None)
                         .map_err(|e| e.within(format!("evaluating {}", dir.display())))?;
                     let json = serde_json::to_string_pretty(&r)? + "\n";
                     motion_render::write_file(&kept, json.as_bytes())?;

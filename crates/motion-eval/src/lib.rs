@@ -7,6 +7,7 @@
 //!   `eval.json`, and its Markdown `eval.md`).
 //! - [`horizon`]: motions rolled out for a minute, measured stretch by
 //!   stretch against every real window.
+//! - [`recognition`]: generated motion seen by the motion classifier.
 //! - [`samples`]: the files `cargo xtask sample` writes (Parquet, JSON,
 //!   BVH, contact sheet, animations, the 3-D viewer).
 //! - [`continuation`]: a user's clip continued by a run's model.
@@ -21,6 +22,7 @@ pub mod chart;
 pub mod compare;
 pub mod continuation;
 pub mod horizon;
+pub mod recognition;
 pub mod report;
 pub mod run;
 pub mod samples;

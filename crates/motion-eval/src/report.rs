@@ -83,6 +83,9 @@ pub struct EvalReport {
     /// Motions rolled out for a minute, stretch by stretch (`eval --horizon`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub horizon: Option<Horizon>,
+    /// Generated motion seen by a motion classifier (`eval --classifier`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub classifier: Option<crate::recognition::Recognition>,
     /// What the user should know (e.g. the dataset is not the run's).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
@@ -112,16 +115,20 @@ pub struct Spread {
 
 /// The evaluation of a run: real, reconstructed and generated windows of
 /// the split, measured alike.
-/// With `horizon`, also the long-horizon table ([`crate::horizon`]).
+/// With `horizon`, also the long-horizon table ([`crate::horizon`]); with
+/// `classifier` (a directory of `train-classifier`), what it recognises
+/// ([`crate::recognition`]).
 pub fn report(
     a: &RunSpec,
     contexts: Contexts,
     horizon: Option<HorizonOptions>,
+    classifier: Option<&std::path::Path>,
 ) -> Result<EvalReport, EvalError> {
-    // The long horizon measures against every split: load them once.
-    let splits = match horizon {
-        Some(_) => crate::horizon::SPLITS.to_vec(),
-        None => vec!["train", a.split.as_str()],
+    // The long horizon and the classifier measure against every split: load
+    // them once.
+    let splits = match horizon.is_some() || classifier.is_some() {
+        true => crate::horizon::SPLITS.to_vec(),
+        false => vec!["train", a.split.as_str()],
     };
     let m = Run::load(a, &splits)?;
     let w = m.split(&a.split)?;
@@ -202,6 +209,9 @@ pub fn report(
         warnings: m.warnings.clone(),
         horizon: horizon
             .map(|o| crate::horizon::horizon(&m, a, o))
+            .transpose()?,
+        classifier: classifier
+            .map(|dir| crate::recognition::recognise(&m, a, dir))
             .transpose()?,
     };
     Ok(report)
@@ -311,6 +321,9 @@ pub fn markdown(r: &EvalReport) -> String {
     );
     if let Some(h) = &r.horizon {
         s += &crate::horizon::markdown(h);
+    }
+    if let Some(c) = &r.classifier {
+        s += &crate::recognition::markdown(c);
     }
     s
 }

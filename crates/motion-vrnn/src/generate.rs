@@ -162,12 +162,17 @@ pub const JUDGE_REFERENCE: usize = 800;
 /// A model's generated motion, measured against the training windows.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Verdict {
-    /// [`goal_distance`] of the generated motion (lower is better).
+    /// [`goal_distance`] of the generated motion (lower is better; with a
+    /// longer rollout, the first stretch's plus the last's).
     pub score: f64,
     /// Fréchet distance of the generated windows to the training windows.
     pub frechet: f64,
     /// The generated motion's measures.
     pub generated: MotionStats,
+    /// With a longer rollout ([`Judge::stretches`]): the last stretch's
+    /// measures and Fréchet distance.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub last: Option<(MotionStats, f64)>,
 }
 
 /// Scores models by their generated motion: [`JUDGE_MOTIONS`] motions, each
@@ -183,6 +188,7 @@ pub struct Judge<'a> {
     real_summaries: Vec<Vec<f64>>,
     frechet_ref: f64,
     options: Options,
+    stretches: usize,
 }
 
 impl<'a> Judge<'a> {
@@ -212,7 +218,16 @@ impl<'a> Judge<'a> {
             real_summaries,
             frechet_ref,
             options,
+            stretches: 1,
         })
+    }
+
+    /// Roll each motion out for `n` window-long stretches (at least 1) and
+    /// score the first and the last: the checkpoint whose motion still holds
+    /// after `n` windows wins, not only the one that starts best.
+    pub fn stretches(mut self, n: usize) -> Self {
+        self.stretches = n.max(1);
+        self
     }
 
     /// The measures of the training windows.
@@ -228,12 +243,34 @@ impl<'a> Judge<'a> {
 
     /// Generate with `model` (sampling seed [`JUDGE_SEED`]) and measure.
     pub fn judge(&self, model: &dyn MotionModel, device: &Device) -> Result<Verdict, TrainError> {
-        let (n, frames) = (JUDGE_MOTIONS, self.starts.length);
-        let gen = sample_windows(model, self.starts, n, frames, CONTEXT, JUDGE_SEED, device)?;
-        let poses: Vec<Vec<Pose>> = gen.iter().map(|x| to_poses(x, self.stats)).collect();
-        let generated = motion_stats(&poses, &self.options);
-        let frechet = frechet(&self.real_summaries, &summaries(&gen, self.starts.features));
-        let score = goal_distance(&self.real, &generated, frechet, self.frechet_ref);
+        let (n, len, f) = (JUDGE_MOTIONS, self.starts.length, self.starts.features);
+        let gen = sample_windows(
+            model,
+            self.starts,
+            n,
+            self.stretches * len,
+            CONTEXT,
+            JUDGE_SEED,
+            device,
+        )?;
+        // A stretch of every motion, re-based to its own start (its
+        // features are local), measured and scored.
+        let measure = |k: usize| {
+            let w: Vec<Vec<f32>> = gen
+                .iter()
+                .map(|x| x[k * len * f..(k + 1) * len * f].to_vec())
+                .collect();
+            let poses: Vec<Vec<Pose>> = w.iter().map(|x| to_poses(x, self.stats)).collect();
+            let stats = motion_stats(&poses, &self.options);
+            let frechet = frechet(&self.real_summaries, &summaries(&w, f));
+            let score = goal_distance(&self.real, &stats, frechet, self.frechet_ref);
+            (stats, frechet, score)
+        };
+        let (generated, frechet, mut score) = measure(0);
+        let last = (self.stretches > 1).then(|| measure(self.stretches - 1));
+        if let Some((_, _, s)) = &last {
+            score += s;
+        }
         Ok(Verdict {
             score: if score.is_finite() {
                 score
@@ -242,6 +279,7 @@ impl<'a> Judge<'a> {
             },
             frechet,
             generated,
+            last: last.map(|(m, fr, _)| (m, fr)),
         })
     }
 }

@@ -98,6 +98,8 @@ pub struct Overrides {
     pub select: Option<SelectBy>,
     /// Epochs between two judgements of generated motion.
     pub judge_every: Option<usize>,
+    /// Window-long stretches the judge rolls its motions out for.
+    pub judge_stretches: Option<usize>,
 }
 
 impl Overrides {
@@ -149,6 +151,9 @@ impl Overrides {
         if let Some(v) = self.early_stopping {
             cfg.early_stopping = (v > 0).then_some(v);
         }
+        if let Some(v) = self.judge_stretches {
+            cfg.judge_stretches = (v > 1).then_some(v);
+        }
         let every = match cfg.select {
             Select::Generation { every } => every,
             Select::Loss => 5,
@@ -177,10 +182,12 @@ mod tests {
             early_stopping: Some(0),
             lr_final: Some(1.0),
             judge_every: Some(7),
+            judge_stretches: Some(1),
             seed: Some(3),
             ..Default::default()
         }
         .apply(&mut cfg);
+        assert_eq!(cfg.judge_stretches, None);
         assert_eq!(cfg.model.parts.kl_weight, None);
         assert_eq!(cfg.clip_grad_norm, None);
         assert_eq!(cfg.early_stopping, None);
@@ -201,6 +208,12 @@ mod tests {
         }
         .apply(&mut paper);
         assert_eq!(paper.select, Select::Generation { every: 5 });
+        Overrides {
+            judge_stretches: Some(4),
+            ..Default::default()
+        }
+        .apply(&mut paper);
+        assert_eq!(paper.judge_stretches, Some(4));
         assert_eq!("loss".parse::<SelectBy>(), Ok(SelectBy::Loss));
         assert!("best".parse::<SelectBy>().is_err());
         assert_eq!(

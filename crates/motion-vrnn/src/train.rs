@@ -46,6 +46,11 @@ pub struct TrainConfig {
     /// half cosine to this share over the second half (None: constant).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lr_final: Option<f64>,
+    /// Window-long stretches the judge rolls its motions out for (None or
+    /// 1: one window); with more it scores the first and the last stretch
+    /// ([`crate::generate::Judge`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub judge_stretches: Option<usize>,
 }
 
 /// How training chooses its `best` checkpoint.
@@ -88,6 +93,7 @@ impl TrainConfig {
             early_stopping: None,
             select: Select::Loss,
             lr_final: None,
+            judge_stretches: None,
         }
     }
 
@@ -602,7 +608,10 @@ pub fn train(
                 "choosing by generated motion needs a positive period".into(),
             ))
         }
-        Select::Generation { every } => Some((Judge::new(data)?, every)),
+        Select::Generation { every } => Some((
+            Judge::new(data)?.stretches(config.judge_stretches.unwrap_or(1)),
+            every,
+        )),
     };
     let last_dir = run.join(layout::LAST);
     let resume = resume && resumable(run, progress)?;

@@ -1,0 +1,166 @@
+//! Generated motion seen by the motion classifier
+//! (`motion_vrnn::classifier`, `cargo xtask train-classifier`): the measures
+//! of the action-to-motion protocol (ACTOR, MDM) that apply to any model —
+//! the Fréchet distance in the classifier's feature space, diversity,
+//! multimodality — and the mix of categories the classifier recognises in
+//! generated motion beside real motion's (`eval --classifier DIR`).
+
+use crate::run::{Run, RunSpec};
+use crate::EvalError;
+use mocap_ingest::category::Category;
+use motion_vrnn::classifier::{self, Classifier};
+use motion_vrnn::data::Windows;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Generated motions the classifier sees.
+pub const MOTIONS: usize = 256;
+
+/// One category's share of windows.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Share {
+    /// The category.
+    pub category: String,
+    /// Share of the real windows (all splits) labelled with it.
+    pub real: f64,
+    /// Share of the real windows (all splits) the classifier puts in it.
+    pub real_recognised: f64,
+    /// Share of the generated motions the classifier puts in it.
+    pub generated: f64,
+}
+
+/// The classifier's view of a run (`eval.json`'s `classifier`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Recognition {
+    /// The classifier directory.
+    pub classifier: String,
+    /// Generated motions (each continuing a random training window).
+    pub motions: usize,
+    /// Recognition accuracy on the real test windows.
+    pub test_accuracy: Option<f64>,
+    /// Fréchet distance of the generated motions' feature vectors to the
+    /// test windows'.
+    pub frechet_generated: f64,
+    /// The same for the training windows (the reference).
+    pub frechet_train: f64,
+    /// Diversity of the real windows (all splits) and of the generated ones.
+    pub diversity_real: Option<f64>,
+    /// Diversity of the generated motions.
+    pub diversity_generated: Option<f64>,
+    /// Multimodality of the real windows by their labels.
+    pub multimodality_real: Option<f64>,
+    /// Multimodality of the generated motions by the category recognised.
+    pub multimodality_generated: Option<f64>,
+    /// Per category, the shares of real and generated windows.
+    pub shares: Vec<Share>,
+}
+
+/// `v` as one [`Windows`] set of `length`-frame windows.
+fn as_windows(v: &[Vec<f32>], length: usize, features: usize) -> Windows {
+    Windows {
+        data: v.concat(),
+        n: v.len(),
+        length,
+        features,
+    }
+}
+
+/// Measure the loaded run `m` (all splits) with the classifier in `dir`.
+pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, EvalError> {
+    let (c, _) = Classifier::load(dir, &m.device)?;
+    let (train, _) = m.data.split("train").ok_or_else(|| EvalError::NoWindows {
+        dir: m.data.dir.clone(),
+        split: "train".into(),
+    })?;
+    let (len, f) = (train.length, train.features);
+    let gen = m.sample(MOTIONS, len, spec.context, spec.seed)?;
+    let gen = c.outputs(&as_windows(&gen, len, f), &m.device)?;
+    let out = |w: &Windows| c.outputs(w, &m.device);
+    let train_out = out(train)?;
+    let (mut real_f, mut labels, mut recognised) = (Vec::new(), Vec::new(), Vec::new());
+    let mut test = None;
+    for split in crate::horizon::SPLITS {
+        if let Some((w, l)) = m.data.split(split) {
+            let o = out(w)?;
+            recognised.extend(o.predicted());
+            labels.extend_from_slice(l);
+            real_f.extend(o.features.iter().cloned());
+            if split == "test" {
+                test = Some((o, l.to_vec()));
+            }
+        }
+    }
+    let (test_f, test_accuracy) = match &test {
+        Some((o, l)) => (
+            o.features.clone(),
+            classifier::accuracy(&o.predicted(), l).overall(),
+        ),
+        None => (train_out.features.clone(), None),
+    };
+    let predicted = gen.predicted();
+    let share = |set: &[Category], c: Category| {
+        set.iter().filter(|&&x| x == c).count() as f64 / set.len().max(1) as f64
+    };
+    let (sd, sl) = (
+        classifier::DIVERSITY_SAMPLES,
+        classifier::MULTIMODALITY_SAMPLES,
+    );
+    Ok(Recognition {
+        classifier: dir.display().to_string(),
+        motions: MOTIONS,
+        test_accuracy,
+        frechet_generated: classifier::feature_frechet(&gen.features, &test_f),
+        frechet_train: classifier::feature_frechet(&train_out.features, &test_f),
+        diversity_real: classifier::diversity(&real_f, sd, spec.seed),
+        diversity_generated: classifier::diversity(&gen.features, sd, spec.seed),
+        multimodality_real: classifier::multimodality(&real_f, &labels, sl, spec.seed),
+        multimodality_generated: classifier::multimodality(
+            &gen.features,
+            &predicted,
+            sl,
+            spec.seed,
+        ),
+        shares: Category::ALL
+            .iter()
+            .map(|&c| Share {
+                category: c.name().to_string(),
+                real: share(&labels, c),
+                real_recognised: share(&recognised, c),
+                generated: share(&predicted, c),
+            })
+            .collect(),
+    })
+}
+
+/// The classifier section of `eval.md`.
+pub fn markdown(r: &Recognition) -> String {
+    let opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.2}"));
+    let mut s = format!(
+        "\n## Seen by the motion classifier ({})\n\n\
+         {} motions from training contexts. Feature-space Fréchet distance to the test windows: \
+         generated **{:.1}**, train windows {:.1} (reference). Diversity: real {}, generated {}. \
+         Multimodality (by label / by recognised category): real {}, generated {}. \
+         Accuracy on the real test windows: {}. Definitions: [metrics.md](metrics.md).\n\n\
+         | category | real windows | real, recognised | generated, recognised |\n|---|---|---|---|\n",
+        r.classifier,
+        r.motions,
+        r.frechet_generated,
+        r.frechet_train,
+        opt(r.diversity_real),
+        opt(r.diversity_generated),
+        opt(r.multimodality_real),
+        opt(r.multimodality_generated),
+        r.test_accuracy
+            .map_or("n/a (no test windows)".into(), |a| format!("{:.1} %", 100.0 * a)),
+    );
+    for sh in &r.shares {
+        s += &format!(
+            "| {} | {:.1} % | {:.1} % | {:.1} % |\n",
+            sh.category,
+            100.0 * sh.real,
+            100.0 * sh.real_recognised,
+            100.0 * sh.generated
+        );
+    }
+    s
+}
