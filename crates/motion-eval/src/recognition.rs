@@ -8,13 +8,45 @@
 use crate::run::{Run, RunSpec};
 use crate::EvalError;
 use mocap_ingest::category::Category;
+use mocap_ingest::Pose;
+use motion_metrics::{motion_stats, Options};
 use motion_vrnn::classifier::{self, Classifier};
 use motion_vrnn::data::Windows;
+use motion_vrnn::generate::to_poses;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Generated motions the classifier sees.
 pub const MOTIONS: usize = 256;
+
+/// The plain measures of one group of windows (`docs/metrics.md`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Plain {
+    /// Windows in the group.
+    pub windows: usize,
+    /// Hips horizontal speed, m/s.
+    pub speed_m_s: f64,
+    /// Share of foot-frames in contact.
+    pub contact: f64,
+    /// Mean jerk, m/s³.
+    pub jerk_m_s3: f64,
+    /// APD, m (None below two windows).
+    pub apd_m: Option<f64>,
+}
+
+fn plain(poses: &[Vec<Pose>]) -> Option<Plain> {
+    if poses.is_empty() {
+        return None;
+    }
+    let m = motion_stats(poses, &Options::default());
+    Some(Plain {
+        windows: poses.len(),
+        speed_m_s: m.root_speed_m_s,
+        contact: m.contact_share,
+        jerk_m_s3: m.jerk_m_s3,
+        apd_m: (poses.len() > 1).then_some(m.apd_m),
+    })
+}
 
 /// One category's share of windows.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -27,6 +59,10 @@ pub struct Share {
     pub real_recognised: f64,
     /// Share of the generated motions the classifier puts in it.
     pub generated: f64,
+    /// The plain measures of the real windows labelled with it.
+    pub real_measures: Option<Plain>,
+    /// The plain measures of the generated motions recognised in it.
+    pub generated_measures: Option<Plain>,
 }
 
 /// The classifier's view of a run (`eval.json`'s `classifier`).
@@ -73,8 +109,11 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
         split: "train".into(),
     })?;
     let (len, f) = (train.length, train.features);
-    let gen = m.sample(MOTIONS, len, spec.context, spec.seed)?;
-    let gen = c.outputs(&as_windows(&gen, len, f), &m.device)?;
+    let generated = m.sample(MOTIONS, len, spec.context, spec.seed)?;
+    let gen = c.outputs(&as_windows(&generated, len, f), &m.device)?;
+    let global = |x: &Vec<f32>| to_poses(x, &m.data.stats);
+    let gen_poses: Vec<Vec<Pose>> = generated.iter().map(global).collect();
+    let mut real_poses: Vec<Vec<Pose>> = Vec::new();
     let out = |w: &Windows| c.outputs(w, &m.device);
     let train_out = out(train)?;
     let (mut real_f, mut labels, mut recognised) = (Vec::new(), Vec::new(), Vec::new());
@@ -85,6 +124,7 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
             recognised.extend(o.predicted());
             labels.extend_from_slice(l);
             real_f.extend(o.features.iter().cloned());
+            real_poses.extend(motion_vrnn::generate::windows_of(w).iter().map(global));
             if split == "test" {
                 test = Some((o, l.to_vec()));
             }
@@ -105,6 +145,15 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
         classifier::DIVERSITY_SAMPLES,
         classifier::MULTIMODALITY_SAMPLES,
     );
+    let group = |poses: &[Vec<Pose>], of: &[Category], c: Category| {
+        let picked: Vec<Vec<Pose>> = poses
+            .iter()
+            .zip(of)
+            .filter(|(_, &x)| x == c)
+            .map(|(p, _)| p.clone())
+            .collect();
+        plain(&picked)
+    };
     Ok(Recognition {
         classifier: dir.display().to_string(),
         motions: MOTIONS,
@@ -127,6 +176,8 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
                 real: share(&labels, c),
                 real_recognised: share(&recognised, c),
                 generated: share(&predicted, c),
+                real_measures: group(&real_poses, &labels, c),
+                generated_measures: group(&gen_poses, &predicted, c),
             })
             .collect(),
     })
@@ -141,7 +192,10 @@ pub fn markdown(r: &Recognition) -> String {
          generated **{:.1}**, train windows {:.1} (reference). Diversity: real {}, generated {}. \
          Multimodality (by label / by recognised category): real {}, generated {}. \
          Accuracy on the real test windows: {}. Definitions: [metrics.md](metrics.md).\n\n\
-         | category | real windows | real, recognised | generated, recognised |\n|---|---|---|---|\n",
+         Per category: the share of real windows labelled with it, recognised in it, and of generated \
+         motions recognised in it; hips speed (m/s), contact share, jerk (m/s³) and APD (m) of the real \
+         windows labelled with it → of the generated motions recognised in it.\n\n\
+         | category | real windows | real, recognised | generated, recognised | hips speed | contact | jerk | APD |\n|---|---|---|---|---|---|---|---|\n",
         r.classifier,
         r.motions,
         r.frechet_generated,
@@ -154,12 +208,24 @@ pub fn markdown(r: &Recognition) -> String {
             .map_or("n/a (no test windows)".into(), |a| format!("{:.1} %", 100.0 * a)),
     );
     for sh in &r.shares {
+        let pair = |f: fn(&Plain) -> Option<f64>, p: usize| {
+            let v = |m: &Option<Plain>| {
+                m.as_ref()
+                    .and_then(f)
+                    .map_or("–".into(), |x| format!("{x:.p$}"))
+            };
+            format!("{} → {}", v(&sh.real_measures), v(&sh.generated_measures))
+        };
         s += &format!(
-            "| {} | {:.1} % | {:.1} % | {:.1} % |\n",
+            "| {} | {:.1} % | {:.1} % | {:.1} % | {} | {} | {} | {} |\n",
             sh.category,
             100.0 * sh.real,
             100.0 * sh.real_recognised,
-            100.0 * sh.generated
+            100.0 * sh.generated,
+            pair(|m| Some(m.speed_m_s), 2),
+            pair(|m| Some(m.contact), 2),
+            pair(|m| Some(m.jerk_m_s3), 0),
+            pair(|m| m.apd_m, 2)
         );
     }
     s
