@@ -333,9 +333,7 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
         variations: a.variations,
         context: a.run.context,
     };
-    if !(o.seconds > 0.0 && o.seconds.is_finite()) || o.variations == 0 {
-        bail!("--seconds must be positive and --variations at least 1");
-    }
+    o.validate()?;
     let (_, _, clip) = mocap_ingest::clip_of_file(&a.input, a.asf.clone(), &Default::default())
         .with_context(|| format!("reading {}", a.input.display()))?;
     let run = motion_eval::run::Run::load(&a.run.spec(), &[])?;

@@ -535,8 +535,14 @@ fn continue_extends_real_clips_and_its_own_bvh_without_a_jump() {
         assert!(!o.status.success());
         String::from_utf8_lossy(&o.stderr).into_owned()
     };
-    let e = err(cont(&mb, &outs.join("x.bvh"), &["--seconds", "0"]));
-    assert!(e.contains("--seconds must be positive"), "{e}");
+    for bad in ["0", "-1", "NaN", "1e9"] {
+        let e = err(cont(
+            &mb,
+            &outs.join("x.bvh"),
+            &[&format!("--seconds={bad}")],
+        ));
+        assert!(e.contains("--seconds must be positive"), "{bad}: {e}");
+    }
     let e = err(cont(&tmp.path().join("none.bvh"), &outs.join("x.bvh"), &[]));
     assert!(e.contains("none.bvh") && e.contains("no such file"), "{e}");
     let bad = inputs.join("bad.bvh");

@@ -13,6 +13,9 @@ use motion_vrnn::generate::{continue_windows, CONTEXT};
 /// Frames per second of the features (and of the BVH written).
 pub const FPS: f64 = 30.0;
 
+/// The longest continuation, in seconds (an hour: 108,000 frames).
+pub const MAX_SECONDS: f64 = 3600.0;
+
 /// How long, how many, from which seed.
 #[derive(Clone, Debug)]
 pub struct ContinueOptions {
@@ -34,6 +37,24 @@ impl Default for ContinueOptions {
             variations: 1,
             context: CONTEXT,
         }
+    }
+}
+
+impl ContinueOptions {
+    /// An error naming the option that cannot work.
+    pub fn validate(&self) -> Result<(), EvalError> {
+        if !(self.seconds > 0.0 && self.seconds <= MAX_SECONDS) {
+            return Err(EvalError::Invalid(format!(
+                "--seconds must be positive and at most {MAX_SECONDS}, got {}",
+                self.seconds
+            )));
+        }
+        if self.variations == 0 || self.context == 0 {
+            return Err(EvalError::Invalid(
+                "--variations and --context must be at least 1".into(),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -116,17 +137,7 @@ pub fn continue_clip(
             clip.len()
         )));
     }
-    if !(o.seconds > 0.0 && o.seconds.is_finite()) {
-        return Err(EvalError::Invalid(format!(
-            "--seconds must be positive, got {}",
-            o.seconds
-        )));
-    }
-    if o.variations == 0 || o.context == 0 {
-        return Err(EvalError::Invalid(
-            "--variations and the context must be at least 1".into(),
-        ));
-    }
+    o.validate()?;
     let stats = &run.data.stats;
     let k = o.context.min(clip.len());
     let generated = (o.seconds * FPS).round().max(1.0) as usize;
