@@ -344,7 +344,8 @@ pub trait MotionModel: Send + Sync {
     /// With `start: [B, K, input]`, the first `K` frames are those real
     /// frames, read through the posterior (so the state and the latent
     /// filter start where real motion would put them); the prior takes over
-    /// at frame `K`. Prior draws use the noise scaled by the model's
+    /// at frame `K`, leaving the last real frame without a jump
+    /// ([`SEAM_FRAMES`]). Prior draws use the noise scaled by the model's
     /// [`Parts::temperature`].
     fn sample(&self, eps: &Tensor, start: Option<&Tensor>) -> Result<Tensor>;
 }
@@ -685,7 +686,6 @@ impl Vrnn {
         Ok(fed)
     }
 
-    /// The mean skeleton for `b` sequences (sampling): `[b, 18]`.
     /// `x − o` over the pose features of a real frame `x: [B, input]` and
     /// the decoder's output `o: [B, ≥ input]` for it (zero on the root
     /// motion, the last three features, and on what `o` has beyond them).
@@ -697,6 +697,7 @@ impl Vrnn {
         Tensor::cat(&[&d, &rest], 1)
     }
 
+    /// The mean skeleton for `b` sequences (sampling): `[b, 18]`.
     fn mean_bones(&self, b: usize, device: &Device) -> Result<Option<Tensor>> {
         match self
             .config
