@@ -272,6 +272,20 @@ fn generated_motions_continue_their_real_context() {
     // The same seed gives the same motions.
     let again = sample_windows(&out.model.model, train_w, 6, frames, k, 3, &dev).unwrap();
     assert_eq!(gen, again);
+    // Restarted every 4 frames, a motion of 13 frames is made in runs: the
+    // first run is the unrestarted motion's start (the same noise), later
+    // runs continue the frames made; the same seed gives the same motion.
+    let mut restarted = out.model.model.clone();
+    restarted.set_restart(Some(4));
+    let long =
+        |m: &motion_vrnn::model::Vrnn| sample_windows(m, train_w, 3, 13, k, 3, &dev).unwrap();
+    let (once, runs) = (long(&out.model.model), long(&restarted));
+    for (a, b) in once.iter().zip(&runs) {
+        assert_eq!(b.len(), 13 * f);
+        assert_eq!(&a[..5 * f], &b[..5 * f], "the first run");
+        assert_ne!(&a[5 * f..], &b[5 * f..], "later runs restart");
+    }
+    assert_eq!(runs, long(&restarted));
     // A context longer than a window, or none, is refused.
     for bad in [0, train_w.length + 1] {
         let e = sample_windows(&out.model.model, train_w, 2, frames, bad, 3, &dev).unwrap_err();
