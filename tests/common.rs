@@ -103,14 +103,7 @@ pub fn read_entry(archive: &std::path::Path, name: &str) -> Vec<u8> {
 }
 
 /// Every file of a dataset directory.
-pub const DATASET_FILES: [&str; 6] = [
-    "frames.parquet",
-    "takes.parquet",
-    "windows.parquet",
-    "stats.json",
-    "skipped.json",
-    "manifest.json",
-];
+pub use mocap_ingest::dataset::FILES as DATASET_FILES;
 
 /// The bytes of every file of a dataset directory.
 pub fn dataset_contents(dir: &Path) -> BTreeMap<&'static str, Vec<u8>> {

@@ -40,6 +40,16 @@ pub const FORMAT_VERSION: u32 = 4;
 /// The three splits, in this order everywhere.
 pub const SPLITS: [&str; 3] = ["train", "val", "test"];
 
+/// Every file the dataset stage writes into its directory (`docs/dataset.md`).
+pub const FILES: [&str; 6] = [
+    "frames.parquet",
+    "takes.parquet",
+    "windows.parquet",
+    "stats.json",
+    "skipped.json",
+    "manifest.json",
+];
+
 /// What a split is decided by.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]

@@ -546,14 +546,7 @@ fn a_dataset_keeps_takes_cut_short_with_a_warning_unless_strict() {
     // Rebuilt: the same bytes.
     let again = tmp.0.join("again");
     build(&src, &again, false);
-    for f in [
-        "frames.parquet",
-        "takes.parquet",
-        "windows.parquet",
-        "stats.json",
-        "skipped.json",
-        "manifest.json",
-    ] {
+    for f in mocap_ingest::dataset::FILES {
         assert!(
             std::fs::read(out.join(f)).unwrap() == std::fs::read(again.join(f)).unwrap(),
             "{f} differs"

@@ -8,7 +8,7 @@ use mocap_ingest::features::{to_global, FeatureVec};
 use mocap_ingest::Pose;
 use motion_render::Motion;
 use motion_vrnn::data::Windows;
-use motion_vrnn::generate::{continue_windows, CONTEXT};
+use motion_vrnn::generate::{continue_windows, denormalise, CONTEXT};
 
 /// Frames per second of the features (and of the BVH written).
 pub const FPS: f64 = 30.0;
@@ -169,13 +169,7 @@ pub fn continue_clip(
             )?
             .remove(0);
             let mut frames = clip.to_vec();
-            frames.extend(x.chunks(window.features).skip(1).map(|r| {
-                let mut f = [0.0; mocap_ingest::NUM_FEATURES];
-                for (i, v) in f.iter_mut().enumerate() {
-                    *v = r[i] as f64 * stats.std[i] + stats.mean[i];
-                }
-                f
-            }));
+            frames.extend(denormalise(&x[window.features..], stats));
             let poses = to_global(&frames);
             Ok(Continued {
                 seam: seam(&poses, clip.len()),

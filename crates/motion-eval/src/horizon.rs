@@ -87,7 +87,7 @@ pub struct Horizon {
 }
 
 /// Every split the long horizon reads ([`Run::load`] them all).
-pub const SPLITS: [&str; 3] = ["train", "val", "test"];
+pub use mocap_ingest::dataset::SPLITS;
 
 /// Roll out `o.motions` motions of the loaded run `m` (with [`SPLITS`]) for
 /// `o.seconds`, with `spec`'s context, seed and split, and measure every

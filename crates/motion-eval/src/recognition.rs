@@ -114,28 +114,27 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
     let global = |x: &Vec<f32>| to_poses(x, &m.data.stats);
     let gen_poses: Vec<Vec<Pose>> = generated.iter().map(global).collect();
     let mut real_poses: Vec<Vec<Pose>> = Vec::new();
-    let out = |w: &Windows| c.outputs(w, &m.device);
-    let train_out = out(train)?;
     let (mut real_f, mut labels, mut recognised) = (Vec::new(), Vec::new(), Vec::new());
-    let mut test = None;
+    // Each split's classifier outputs, once.
+    let mut per_split = Vec::new();
     for split in crate::horizon::SPLITS {
         if let Some((w, l)) = m.data.split(split) {
-            let o = out(w)?;
+            let o = c.outputs(w, &m.device)?;
             recognised.extend(o.predicted());
             labels.extend_from_slice(l);
             real_f.extend(o.features.iter().cloned());
             real_poses.extend(motion_vrnn::generate::windows_of(w).iter().map(global));
-            if split == "test" {
-                test = Some((o, l.to_vec()));
-            }
+            per_split.push((split, o, l));
         }
     }
-    let (test_f, test_accuracy) = match &test {
-        Some((o, l)) => (
-            o.features.clone(),
+    let of = |name: &str| per_split.iter().find(|s| s.0 == name);
+    let train_f = of("train").map_or(&real_f, |s| &s.1.features);
+    let (test_f, test_accuracy) = match of("test") {
+        Some((_, o, l)) => (
+            &o.features,
             classifier::accuracy(&o.predicted(), l).overall(),
         ),
-        None => (train_out.features.clone(), None),
+        None => (train_f, None),
     };
     let predicted = gen.predicted();
     let share = |set: &[Category], c: Category| {
@@ -158,8 +157,8 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
         classifier: dir.display().to_string(),
         motions: MOTIONS,
         test_accuracy,
-        frechet_generated: classifier::feature_frechet(&gen.features, &test_f),
-        frechet_train: classifier::feature_frechet(&train_out.features, &test_f),
+        frechet_generated: classifier::feature_frechet(&gen.features, test_f),
+        frechet_train: classifier::feature_frechet(train_f, test_f),
         diversity_real: classifier::diversity(&real_f, sd, spec.seed),
         diversity_generated: classifier::diversity(&gen.features, sd, spec.seed),
         multimodality_real: classifier::multimodality(&real_f, &labels, sl, spec.seed),

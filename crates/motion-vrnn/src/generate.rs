@@ -13,10 +13,9 @@ use mocap_ingest::skeleton::Pose;
 use motion_metrics::{frechet, goal_distance, motion_stats, window_summary, MotionStats, Options};
 use serde::{Deserialize, Serialize};
 
-/// Normalised feature rows (`[T × 58]`, one window) → global joint positions.
-pub fn to_poses(x: &[f32], stats: &Stats) -> Vec<Pose> {
-    let frames: Vec<FeatureVec> = x
-        .chunks(NUM_FEATURES)
+/// Normalised feature rows (`[T × 58]`) → feature vectors in their units.
+pub fn denormalise(x: &[f32], stats: &Stats) -> Vec<FeatureVec> {
+    x.chunks(NUM_FEATURES)
         .map(|r| {
             let mut f = [0.0; NUM_FEATURES];
             for (k, v) in f.iter_mut().enumerate() {
@@ -24,8 +23,12 @@ pub fn to_poses(x: &[f32], stats: &Stats) -> Vec<Pose> {
             }
             f
         })
-        .collect();
-    to_global(&frames)
+        .collect()
+}
+
+/// Normalised feature rows (`[T × 58]`, one window) → global joint positions.
+pub fn to_poses(x: &[f32], stats: &Stats) -> Vec<Pose> {
+    to_global(&denormalise(x, stats))
 }
 
 /// The per-window summaries the Fréchet distance compares, of normalised
