@@ -2,12 +2,22 @@
 //! checkpoint that reloads to the same loss; the NaN guard.
 
 use motion_vrnn::data::load;
-use motion_vrnn::generate::{sample_windows, Judge};
+use motion_vrnn::generate::{sample_windows, Judge, Rollout};
 use motion_vrnn::train::{
     layout, load_model, noise, read_meta, train, Quiet, Select, TrainConfig, TrainError,
 };
 use motion_vrnn::MotionModel;
 use std::path::Path;
+
+/// Motions of `frames` frames continuing `context` frames, seed 3.
+fn roll(frames: usize, context: usize) -> Rollout {
+    Rollout {
+        frames,
+        context,
+        seed: 3,
+        ask: None,
+    }
+}
 
 fn small_dataset(dir: &Path) -> std::path::PathBuf {
     integration_tests::small_dataset(dir, [0.5, 0.5, 0.0])
@@ -55,8 +65,8 @@ fn train_checkpoint_reload_gives_the_same_loss() {
     let idx: Vec<usize> = (0..8).collect();
     let x = tr.batch(&idx, &dev).unwrap();
     let eps = noise(42, 0, tr.length, 8, 8, &dev).unwrap();
-    let a = out.model.model.losses(&x, &eps, None).unwrap();
-    let b = reloaded.model.losses(&x, &eps, None).unwrap();
+    let a = out.model.model.losses(&x, &eps, None, None).unwrap();
+    let b = reloaded.model.losses(&x, &eps, None, None).unwrap();
     let s = |t: &candle_core::Tensor| t.to_scalar::<f32>().unwrap();
     assert_eq!(s(&a.recon), s(&b.recon));
     assert_eq!(s(&a.kl), s(&b.kl));
@@ -255,7 +265,7 @@ fn generated_motions_continue_their_real_context() {
     let out = train(&data, &cfg, &tmp.path().join("run"), false, &dev, &Quiet).unwrap();
     let train_w = &data.splits["train"];
     let (f, k, frames) = (train_w.features, 5, 10);
-    let gen = sample_windows(&out.model.model, train_w, 6, frames, k, 3, &dev).unwrap();
+    let gen = sample_windows(&out.model.model, train_w, 6, &roll(frames, k), &dev).unwrap();
     assert_eq!(gen.len(), 6);
     // Each motion starts at the last context frame of some training window
     // (bit for bit: a real frame is read, not decoded), then moves on.
@@ -270,7 +280,7 @@ fn generated_motions_continue_their_real_context() {
         assert!(m[f..2 * f] != m[..f], "the second frame is generated");
     }
     // The same seed gives the same motions.
-    let again = sample_windows(&out.model.model, train_w, 6, frames, k, 3, &dev).unwrap();
+    let again = sample_windows(&out.model.model, train_w, 6, &roll(frames, k), &dev).unwrap();
     assert_eq!(gen, again);
     // Restarted every 4 frames, a motion of 13 frames is made in runs: the
     // first run is the unrestarted motion's start (the same noise), later
@@ -278,7 +288,7 @@ fn generated_motions_continue_their_real_context() {
     let mut restarted = out.model.model.clone();
     restarted.set_restart(Some(4));
     let long =
-        |m: &motion_vrnn::model::Vrnn| sample_windows(m, train_w, 3, 13, k, 3, &dev).unwrap();
+        |m: &motion_vrnn::model::Vrnn| sample_windows(m, train_w, 3, &roll(13, k), &dev).unwrap();
     let (once, runs) = (long(&out.model.model), long(&restarted));
     for (a, b) in once.iter().zip(&runs) {
         assert_eq!(b.len(), 13 * f);
@@ -288,7 +298,7 @@ fn generated_motions_continue_their_real_context() {
     assert_eq!(runs, long(&restarted));
     // A context longer than a window, or none, is refused.
     for bad in [0, train_w.length + 1] {
-        let e = sample_windows(&out.model.model, train_w, 2, frames, bad, 3, &dev).unwrap_err();
+        let e = sample_windows(&out.model.model, train_w, 2, &roll(frames, bad), &dev).unwrap_err();
         assert!(e.to_string().contains("context"), "{e}");
     }
 }

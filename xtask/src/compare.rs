@@ -36,6 +36,10 @@ pub struct CompareArgs {
     /// evaluating it again.
     #[arg(long)]
     reuse_reports: bool,
+    /// A classifier (`train-classifier`): also train the default model with
+    /// `--condition category` and ask it for each category.
+    #[arg(long)]
+    classifier: Option<PathBuf>,
 }
 
 /// `cargo xtask compare`.
@@ -60,6 +64,7 @@ pub fn run(a: CompareArgs) -> Result<()> {
             motions: 256,
         }),
         reuse_reports: a.reuse_reports,
+        classifier: a.classifier,
     };
     let md = compare(&o, &|line| eprintln!("{line}"))?;
     println!("{md}");

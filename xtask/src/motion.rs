@@ -43,6 +43,14 @@ pub struct RunArgs {
     /// the last --context frames made, instead of the model's own (0: one run).
     #[arg(long)]
     pub restart: Option<usize>,
+    /// Generate this category (`walk`, `run`, …; a model trained with
+    /// `--condition category`), from training contexts of it.
+    #[arg(long)]
+    pub category: Option<String>,
+    /// Guidance scale of --category (1: as trained; 0: no category; above
+    /// 1: further from the unconditioned model).
+    #[arg(long, default_value_t = 1.0)]
+    pub guidance: f64,
 }
 
 /// `cargo xtask sample` options.
@@ -155,6 +163,8 @@ impl RunArgs {
             context: self.context,
             temperature: self.temperature,
             restart: self.restart,
+            category: self.category.clone(),
+            guidance: self.guidance,
         }
     }
 }
@@ -200,6 +210,12 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         "  anim/*.png                      animated PNG per motion (and real vs reconstruction)"
     );
     println!("  viewer.html                     open in a browser: 3-D, orbit/pan/zoom, play/pause, speed, frame slider");
+    if !w.category_sheet.is_empty() {
+        println!(
+            "  category_sheet.png              one row per category asked for: {}",
+            w.category_sheet.join(", ")
+        );
+    }
     print!("{}", round_trip_table(&w.round_trips));
     Ok(())
 }

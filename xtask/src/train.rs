@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use motion_vrnn::bench;
 use motion_vrnn::classifier::{self, ClassifierTraining};
 use motion_vrnn::model::{Config, MODELS};
-use motion_vrnn::options::{Overrides, Preset, SelectBy};
+use motion_vrnn::options::{ConditionOn, Overrides, Preset, SelectBy};
 use motion_vrnn::train::{layout, train, EpochMetrics, TrainProgress};
 use std::path::PathBuf;
 
@@ -88,6 +88,13 @@ pub struct TrainArgs {
     /// the first and the last; 1: one window).
     #[arg(long)]
     pub judge_stretches: Option<usize>,
+    /// `category`: condition the model on each window's category, so
+    /// `sample --category walk` can ask for one (`none`: unconditioned).
+    #[arg(long)]
+    pub condition: Option<ConditionOn>,
+    /// Share of windows trained without their category (--condition category).
+    #[arg(long)]
+    pub condition_dropout: Option<f64>,
     /// Continue the run in --out from its `last` checkpoint.
     #[arg(long)]
     pub resume: bool,
@@ -171,6 +178,8 @@ impl TrainArgs {
             select: self.select,
             judge_every: self.judge_every,
             judge_stretches: self.judge_stretches,
+            condition: self.condition,
+            condition_dropout: self.condition_dropout,
         }
     }
 }

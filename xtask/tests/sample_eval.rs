@@ -633,3 +633,118 @@ fn eval_measures_generated_motion_with_the_classifier() {
     // The same run, classifier and seed: the same report.
     assert_eq!(eval(&tmp.path().join("e2")), text);
 }
+
+/// `train --condition category` records the categories of its training
+/// windows; `sample --category` asks for one of them; an unknown name, a
+/// category the model has not seen and an unconditioned run each say what
+/// can be asked instead.
+#[test]
+fn a_conditioned_run_samples_the_category_asked_for() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    small_dataset(&six_takes(tmp.path()), &ds);
+    let run = tmp.path().join("cond");
+    let ok = xtask()
+        .args(["train", "--quiet", "--batch", "8", "--epochs", "2"])
+        .args(["--condition", "category", "--data"])
+        .arg(&ds)
+        .arg("--out")
+        .arg(&run)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("best/checkpoint.json")).unwrap())
+            .unwrap();
+    let known: Vec<String> = meta["config"]["model"]["categories"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_str().unwrap().to_string())
+        .collect();
+    assert!(!known.is_empty());
+    let sample = |run: &Path, category: &str, out: &str| {
+        xtask()
+            .args(["sample", "--n", "2", "--frames", "20", "--split", "val"])
+            .args(["--category", category, "--run"])
+            .arg(run)
+            .arg("--out")
+            .arg(tmp.path().join(out))
+            .output()
+            .unwrap()
+    };
+    let o = sample(&run, &known[0], "asked");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(tmp.path().join("asked/samples.parquet").is_file());
+    let err = |o: std::process::Output| {
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    let e = err(sample(&run, "salsa", "bad"));
+    assert!(
+        e.contains("unknown category") && e.contains("gesture"),
+        "{e}"
+    );
+    let absent = [
+        "walk", "run", "jump", "dance", "sport", "play", "floor", "gesture", "other",
+    ]
+    .into_iter()
+    .find(|c| !known.iter().any(|k| k == c))
+    .unwrap();
+    let e = err(sample(&run, absent, "bad"));
+    assert!(
+        e.contains("not trained with") && e.contains(&known[0]),
+        "{e}"
+    );
+    // An unconditioned run cannot be asked.
+    let plain = tmp.path().join("plain");
+    train(&ds, &plain);
+    let e = err(sample(&plain, &known[0], "bad"));
+    assert!(e.contains("--condition category"), "{e}");
+    // Without --category both sample as before; the conditioned run also
+    // draws one row per category.
+    for (r, out, conditioned) in [(&run, "free", true), (&plain, "free_plain", false)] {
+        let o = xtask()
+            .args([
+                "sample", "--n", "2", "--frames", "20", "--split", "val", "--run",
+            ])
+            .arg(r)
+            .arg("--out")
+            .arg(tmp.path().join(out))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let sheet = tmp.path().join(out).join("category_sheet.png");
+        assert_eq!(sheet.is_file(), conditioned, "{}", sheet.display());
+    }
+    // `continue --category` asks too, and differs from the same seed unasked.
+    let clip = extract(
+        "cmu-bvh-sample.zip",
+        "cmu-bvh-motionbuilder/02/02_01.bvh",
+        &tmp.path().join("in"),
+    );
+    let cont = |extra: &[&str], out: &str| {
+        let o = xtask()
+            .args(["continue", "--seconds", "1", "--run"])
+            .arg(&run)
+            .arg("--input")
+            .arg(&clip)
+            .arg("--out")
+            .arg(tmp.path().join(out))
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(tmp.path().join(out)).unwrap()
+    };
+    let asked = cont(&["--category", &known[0]], "asked.bvh");
+    assert_ne!(asked, cont(&[], "free.bvh"));
+    assert_eq!(asked, cont(&["--category", &known[0]], "again.bvh"));
+    let (_, h, _) = apng_frames(&tmp.path().join("free/category_sheet.png"));
+    let (_, h1, _) = apng_frames(&tmp.path().join("free/contact_sheet.png"));
+    assert!(
+        known.len() < 2 || h > h1,
+        "one row per category: {h} vs {h1}"
+    );
+}

@@ -3,6 +3,7 @@
 //! each model meets, training time, contact sheets).
 
 use crate::horizon::{misses, Horizon, HorizonOptions, MEASURES as HORIZON_MEASURES};
+pub use crate::mean_std;
 use crate::report::{report, Contexts, EvalReport};
 use crate::run::RunSpec;
 use crate::samples::{write_samples, SampleOptions};
@@ -34,7 +35,18 @@ pub struct CompareOptions {
     /// one instead of evaluating it again (written on every evaluation; the
     /// caller vouches that evaluation has not changed since).
     pub reuse_reports: bool,
+    /// A classifier directory (`train-classifier`): also train the default
+    /// model conditioned on the category ([`CONDITIONED`]) with every seed
+    /// and ask it for each category ([`crate::asked`]).
+    pub classifier: Option<PathBuf>,
 }
+
+/// The directory name (under [`CompareOptions::out`]) of the default model
+/// trained with `--condition category`.
+pub const CONDITIONED: &str = "motion-category";
+
+/// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
+pub const ASKED_FILE: &str = "compare-asked.json";
 
 /// The file each evaluated run's report is kept in.
 pub const REPORT_FILE: &str = "compare-eval.json";
@@ -70,7 +82,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                         )?)
                     }
                 };
-                train_one(d, name, seed, o.epochs, &dir)
+                train_one(d, name, seed, o.epochs, false, &dir)
                     .map_err(|e| e.within(format!("training {name} seed {seed}")))?;
             }
             let seconds = train_seconds(&dir).unwrap_or(started.elapsed().as_secs_f64());
@@ -125,25 +137,100 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
         }
         table.push((name.clone(), runs));
     }
-    let md = page(o, &table)?;
+    let mut md = page(o, &table)?;
+    if let Some(classifier) = &o.classifier {
+        md += &conditioned(o, classifier, &images, log)?;
+    }
     motion_render::write_file(&o.page, md.as_bytes())?;
     Ok(md)
 }
 
+/// Train (or reuse) the default model conditioned on the category with
+/// every seed, ask each run for every category, draw seed 0's category
+/// sheet; the results page's section.
+fn conditioned(
+    o: &CompareOptions,
+    classifier: &Path,
+    images: &Path,
+    log: &dyn Fn(&str),
+) -> Result<String, EvalError> {
+    let mut runs = Vec::new();
+    let name = motion_vrnn::model::DEFAULT_MODEL;
+    for seed in 0..o.seeds {
+        let dir = o.out.join(CONDITIONED).join(format!("seed-{seed}"));
+        if dir.join(layout::LAST).join(layout::META).exists() {
+            log(&format!(
+                "{CONDITIONED} seed {seed}: reusing {}",
+                dir.display()
+            ));
+        } else {
+            log(&format!(
+                "{CONDITIONED} seed {seed}: training into {}",
+                dir.display()
+            ));
+            let d = motion_vrnn::data::load(&o.data, &["train", "val"]).map_err(|source| {
+                EvalError::Data {
+                    dir: o.data.clone(),
+                    source,
+                }
+            })?;
+            train_one(&d, name, seed, o.epochs, true, &dir)
+                .map_err(|e| e.within(format!("training {CONDITIONED} seed {seed}")))?;
+        }
+        let spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
+        let kept = dir.join(ASKED_FILE);
+        let asked = match std::fs::read_to_string(&kept) {
+            Ok(text) if o.reuse_reports => serde_json::from_str(&text)?,
+            _ => {
+                let a = crate::asked::evaluate(&spec, classifier)
+                    .map_err(|e| e.within(format!("asking {}", dir.display())))?;
+                let json = serde_json::to_string_pretty(&a)? + "\n";
+                motion_render::write_file(&kept, json.as_bytes())?;
+                a
+            }
+        };
+        if seed == 0 {
+            let m = crate::run::Run::load(&spec, &["train"])?;
+            let png = images.join(format!("{CONDITIONED}.png"));
+            crate::samples::category_sheet(&m, &spec, 128, 5, &png)?;
+        }
+        log(&format!(
+            "{CONDITIONED} seed {seed}: {} categories, {} of them miss a goal",
+            asked.categories.len(),
+            asked
+                .categories
+                .iter()
+                .filter(|c| c.in_goals() && !c.misses().is_empty())
+                .count()
+        ));
+        runs.push((seed, asked));
+    }
+    Ok(crate::asked::page_section(
+        &runs,
+        &format!("images/results/{CONDITIONED}.png"),
+    ))
+}
+
 /// Train model `name` with the standard schedule and `seed` into `dir`
 /// (checkpoints, metrics, `loss.png`), as `cargo xtask train --model NAME
-/// --seed SEED` does.
+/// --seed SEED [--condition category]` does.
 fn train_one(
     data: &motion_vrnn::data::Dataset,
     name: &str,
     seed: u64,
     epochs: Option<usize>,
+    conditioned: bool,
     dir: &Path,
 ) -> Result<(), EvalError> {
     let mut cfg = TrainConfig::standard();
     cfg.model =
         Config::named(name).ok_or_else(|| EvalError::Invalid(format!("unknown model {name:?}")))?;
     cfg.seed = seed;
+    if conditioned {
+        cfg.condition = Some(motion_vrnn::train::Conditioning {
+            dropout: motion_vrnn::train::CONDITION_DROPOUT,
+        });
+    }
     if let Some(e) = epochs {
         cfg.epochs = e;
     }
@@ -325,14 +412,6 @@ fn average(values: &[serde_json::Value]) -> serde_json::Value {
 
 fn within(x: f64) -> bool {
     (0.75..=1.25).contains(&x)
-}
-
-/// Mean and sample standard deviation.
-pub fn mean_std(v: &[f64]) -> (f64, f64) {
-    let n = v.len().max(1) as f64;
-    let m = mean_of(v);
-    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
-    (m, var.sqrt())
 }
 
 /// Training seconds of a run: the sum of its epochs' times.

@@ -8,7 +8,7 @@ use mocap_ingest::features::{to_global, FeatureVec};
 use mocap_ingest::Pose;
 use motion_render::Motion;
 use motion_vrnn::data::Windows;
-use motion_vrnn::generate::{continue_windows, denormalise, CONTEXT};
+use motion_vrnn::generate::{continue_windows, denormalise, Rollout, CONTEXT};
 
 /// Frames per second of the features (and of the BVH written).
 pub const FPS: f64 = 30.0;
@@ -158,16 +158,14 @@ pub fn continue_clip(
         .map(|v| {
             let seed = o.seed + v;
             // The motion's first frame is the clip's last: the rest is new.
-            let x = continue_windows(
-                &run.model.model,
-                &window,
-                &[0],
-                generated + 1,
-                k,
+            let rollout = Rollout {
+                frames: generated + 1,
+                context: k,
                 seed,
-                &run.device,
-            )?
-            .remove(0);
+                ask: run.ask.map(|a| a.1),
+            };
+            let x =
+                continue_windows(&run.model.model, &window, &[0], &rollout, &run.device)?.remove(0);
             let mut frames = clip.to_vec();
             frames.extend(denormalise(&x[window.features..], stats));
             let poses = to_global(&frames);

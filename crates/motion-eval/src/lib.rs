@@ -8,6 +8,8 @@
 //! - [`horizon`]: motions rolled out for a minute, measured stretch by
 //!   stretch against every real window.
 //! - [`recognition`]: generated motion seen by the motion classifier.
+//! - [`asked`]: a conditioned model asked for each category, measured by
+//!   the classifier and per category.
 //! - [`samples`]: the files `cargo xtask sample` writes (Parquet, JSON,
 //!   BVH, contact sheet, animations, the 3-D viewer).
 //! - [`continuation`]: a user's clip continued by a run's model.
@@ -18,6 +20,7 @@
 //! Above `motion-vrnn`, `motion-metrics` and `motion-render`; below `xtask`,
 //! which parses options, shows progress and prints what these return.
 
+pub mod asked;
 pub mod chart;
 pub mod compare;
 pub mod continuation;
@@ -110,4 +113,12 @@ pub(crate) fn create_dir(path: &std::path::Path) -> Result<(), EvalError> {
 /// Mean of `v` (0 when empty).
 pub fn mean_of(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+/// Mean and sample standard deviation.
+pub fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len().max(1) as f64;
+    let m = mean_of(v);
+    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    (m, var.sqrt())
 }

@@ -5,48 +5,19 @@
 //! multimodality — and the mix of categories the classifier recognises in
 //! generated motion beside real motion's (`eval --classifier DIR`).
 
+use crate::asked::as_windows;
+pub use crate::asked::{plain, Plain};
 use crate::run::{Run, RunSpec};
 use crate::EvalError;
 use mocap_ingest::category::Category;
 use mocap_ingest::Pose;
-use motion_metrics::{motion_stats, Options};
 use motion_vrnn::classifier::{self, Classifier};
-use motion_vrnn::data::Windows;
 use motion_vrnn::generate::to_poses;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Generated motions the classifier sees.
 pub const MOTIONS: usize = 256;
-
-/// The plain measures of one group of windows (`docs/metrics.md`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Plain {
-    /// Windows in the group.
-    pub windows: usize,
-    /// Hips horizontal speed, m/s.
-    pub speed_m_s: f64,
-    /// Share of foot-frames in contact.
-    pub contact: f64,
-    /// Mean jerk, m/s³.
-    pub jerk_m_s3: f64,
-    /// APD, m (None below two windows).
-    pub apd_m: Option<f64>,
-}
-
-fn plain(poses: &[Vec<Pose>]) -> Option<Plain> {
-    if poses.is_empty() {
-        return None;
-    }
-    let m = motion_stats(poses, &Options::default());
-    Some(Plain {
-        windows: poses.len(),
-        speed_m_s: m.root_speed_m_s,
-        contact: m.contact_share,
-        jerk_m_s3: m.jerk_m_s3,
-        apd_m: (poses.len() > 1).then_some(m.apd_m),
-    })
-}
 
 /// One category's share of windows.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -89,16 +60,10 @@ pub struct Recognition {
     pub multimodality_generated: Option<f64>,
     /// Per category, the shares of real and generated windows.
     pub shares: Vec<Share>,
-}
-
-/// `v` as one [`Windows`] set of `length`-frame windows.
-fn as_windows(v: &[Vec<f32>], length: usize, features: usize) -> Windows {
-    Windows {
-        data: v.concat(),
-        n: v.len(),
-        length,
-        features,
-    }
+    /// A conditioned model asked for each of its categories
+    /// ([`crate::asked`]); absent for an unconditioned one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub asked: Option<crate::asked::AskedSet>,
 }
 
 /// Measure the loaded run `m` (all splits) with the classifier in `dir`.
@@ -136,6 +101,10 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
         ),
         None => (train_f, None),
     };
+    let seen = crate::asked::RealSeen {
+        splits: per_split.iter().map(|(s, o, l)| (*s, o, *l)).collect(),
+    };
+    let asked = crate::asked::ask_each(m, spec, &c, &seen)?;
     let predicted = gen.predicted();
     let share = |set: &[Category], c: Category| {
         set.iter().filter(|&&x| x == c).count() as f64 / set.len().max(1) as f64
@@ -179,6 +148,7 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
                 generated_measures: group(&gen_poses, &predicted, c),
             })
             .collect(),
+        asked,
     })
 }
 

@@ -132,20 +132,25 @@ pub fn report(
     };
     let m = Run::load(a, &splits)?;
     let w = m.split(&a.split)?;
-    let (recon, kl) = evaluate(&m.model.model, w, 256, a.seed, &m.device)?;
+    let categories = m
+        .data
+        .categories
+        .get(&a.split)
+        .map_or(&[][..], Vec::as_slice);
+    let (recon, kl) = evaluate(&m.model.model, w, categories, 256, a.seed, &m.device)?;
     let t = w.length as f64;
     let idx: Vec<usize> = (0..w.n).collect();
-    let (real, rec) = m.reconstruct(w, &idx)?;
+    let (real, rec) = m.reconstruct(&a.split, &idx)?;
+    let rollout = generate::Rollout {
+        frames: w.length,
+        context: a.context,
+        seed: a.seed,
+        ask: m.ask.map(|a| a.1),
+    };
     let gen = match contexts {
-        Contexts::Split => generate::continue_windows(
-            &m.model.model,
-            w,
-            &idx,
-            w.length,
-            a.context,
-            a.seed,
-            &m.device,
-        )?,
+        Contexts::Split => {
+            generate::continue_windows(&m.model.model, w, &idx, &rollout, &m.device)?
+        }
         Contexts::Train => m.sample(w.n, w.length, a.context, a.seed)?,
     };
     let global = |set: &[Vec<f32>]| -> Vec<Vec<Pose>> {
@@ -324,6 +329,9 @@ pub fn markdown(r: &EvalReport) -> String {
     }
     if let Some(c) = &r.classifier {
         s += &crate::recognition::markdown(c);
+        if let Some(a) = &c.asked {
+            s += &crate::asked::markdown(a);
+        }
     }
     s
 }

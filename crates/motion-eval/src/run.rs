@@ -4,8 +4,9 @@
 use crate::EvalError;
 use candle_core::Device;
 use motion_render::Motion;
+use motion_vrnn::data::Category;
 use motion_vrnn::data::{Dataset, Stats, Windows};
-use motion_vrnn::generate::{self, to_poses};
+use motion_vrnn::generate::{self, to_poses, Ask, Rollout};
 use motion_vrnn::train::{layout, load_model, CheckpointMeta, Trained};
 use motion_vrnn::MotionModel;
 use std::path::PathBuf;
@@ -30,6 +31,12 @@ pub struct RunSpec {
     /// Frames per run of the recurrence instead of the model's own
     /// (`Some(0)`: one run; see `Parts::restart`).
     pub restart: Option<usize>,
+    /// The category to generate (a model trained with `--condition
+    /// category`): generated motions are asked for it and continue
+    /// training windows of it.
+    pub category: Option<String>,
+    /// Guidance scale of the category ([`motion_vrnn::Config::condition`]).
+    pub guidance: f64,
 }
 
 impl RunSpec {
@@ -45,6 +52,8 @@ impl RunSpec {
             context: generate::CONTEXT,
             temperature: None,
             restart: None,
+            category: None,
+            guidance: 1.0,
         }
     }
 }
@@ -65,6 +74,8 @@ pub struct Run {
     /// What the caller should tell the user (e.g. another dataset than the
     /// run's).
     pub warnings: Vec<String>,
+    /// The category asked for ([`RunSpec::category`]).
+    pub ask: Option<(Category, Ask)>,
 }
 
 impl Run {
@@ -88,6 +99,28 @@ impl Run {
         if let Some(r) = spec.restart {
             model.model.set_restart(Some(r));
         }
+        let ask = match &spec.category {
+            Some(name) => {
+                let row = meta.config.model.category_row(name).map_err(|e| {
+                    EvalError::Invalid(format!("--category: {}: {e}", ck.display()))
+                })?;
+                let category = name.parse().map_err(EvalError::Invalid)?;
+                if !(spec.guidance.is_finite() && spec.guidance >= 0.0) {
+                    return Err(EvalError::Invalid(format!(
+                        "--guidance must be 0 or more, got {}",
+                        spec.guidance
+                    )));
+                }
+                Some((
+                    category,
+                    Ask {
+                        row,
+                        guidance: spec.guidance,
+                    },
+                ))
+            }
+            None => None,
+        };
         let dir = spec
             .data
             .clone()
@@ -109,6 +142,7 @@ impl Run {
             data,
             device,
             warnings,
+            ask,
         })
     }
 
@@ -126,7 +160,9 @@ impl Run {
 
     /// `n` motions of `frames` frames sampled from the prior, each
     /// continuing `context` frames of a random training window
-    /// ([`generate::sample_windows`]), normalised.
+    /// ([`generate::sample_windows`]), normalised. With a category asked
+    /// for ([`RunSpec::category`]), the motions are asked for it and
+    /// continue training windows of it.
     pub fn sample(
         &self,
         n: usize,
@@ -134,29 +170,85 @@ impl Run {
         context: usize,
         seed: u64,
     ) -> Result<WindowSet, EvalError> {
-        Ok(generate::sample_windows(
-            &self.model.model,
-            self.split("train")?,
-            n,
+        self.sample_asked(self.ask, n, frames, context, seed)
+    }
+
+    /// [`Run::sample`] asking for `ask` (None: no category, contexts from
+    /// every training window) instead of the run's own.
+    pub fn sample_asked(
+        &self,
+        ask: Option<(Category, Ask)>,
+        n: usize,
+        frames: usize,
+        context: usize,
+        seed: u64,
+    ) -> Result<WindowSet, EvalError> {
+        let (train, categories) = self
+            .data
+            .split("train")
+            .ok_or_else(|| EvalError::NoWindows {
+                dir: self.data.dir.clone(),
+                split: "train".into(),
+            })?;
+        let pool: Vec<usize> = match ask {
+            Some((c, _)) => (0..train.n)
+                .filter(|&i| categories.get(i) == Some(&c))
+                .collect(),
+            None => (0..train.n).collect(),
+        };
+        if pool.is_empty() {
+            return Err(EvalError::Invalid(format!(
+                "{}: no training windows of the category asked for to start from",
+                self.data.dir.display()
+            )));
+        }
+        let rollout = Rollout {
             frames,
             context,
             seed,
+            ask: ask.map(|a| a.1),
+        };
+        let picks: Vec<usize> = generate::picks(seed, n, pool.len())
+            .into_iter()
+            .map(|i| pool[i])
+            .collect();
+        Ok(generate::continue_windows(
+            &self.model.model,
+            train,
+            &picks,
+            &rollout,
             &self.device,
         )?)
     }
 
-    /// Real windows `idx` of `w` and their reconstructions, normalised.
+    /// Real windows `idx` of split `split` and their reconstructions,
+    /// normalised (a conditioned model reads each window's category).
     pub fn reconstruct(
         &self,
-        w: &Windows,
+        split: &str,
         idx: &[usize],
     ) -> Result<(WindowSet, WindowSet), EvalError> {
+        let w = self.split(split)?;
+        let categories = self
+            .data
+            .categories
+            .get(split)
+            .map_or(&[][..], Vec::as_slice);
         let per = w.length * w.features;
         let mut real = Vec::new();
         let mut rec = Vec::new();
         for chunk in idx.chunks(256) {
             let x = w.batch(chunk, &self.device)?;
-            let r = self.model.model.reconstruct(&x)?;
+            let cats: Vec<Category> = chunk
+                .iter()
+                .map(|&i| categories.get(i).copied().unwrap_or(Category::Other))
+                .collect();
+            let cond =
+                self.model
+                    .model
+                    .config()
+                    .window_condition(&cats, |_| false, &self.device)?;
+            let r = self.model.model.reconstruct(&x, cond.as_ref())?;
             for (set, t) in [(&mut real, &x), (&mut rec, &r)] {
                 set.extend(
                     t.flatten_all()?

@@ -5,10 +5,12 @@
 use crate::run::{Run, RunSpec};
 use crate::{create_dir, EvalError};
 use motion_render::bvh::RoundTrip;
-use motion_render::figure::{animation, contact_sheet};
+use motion_render::figure::{animation, contact_sheet, SHEET_MOTIONS_PER_ROW};
 use motion_render::io::write_motions;
 use motion_render::viewer::{write_viewer, MotionSet};
 use motion_render::Motion;
+use motion_vrnn::generate::Ask;
+use motion_vrnn::MotionModel;
 use std::path::Path;
 
 /// How many motions, how long, and what else to write.
@@ -39,6 +41,40 @@ pub struct Written {
     pub round_trips: Vec<(&'static str, Vec<RoundTrip>)>,
     /// What the user should know.
     pub warnings: Vec<String>,
+    /// A conditioned model asked for nothing: the categories drawn in
+    /// `category_sheet.png` ([`category_sheet`]), one row each.
+    pub category_sheet: Vec<String>,
+}
+
+/// The contact sheet of a conditioned model: one row per category of the
+/// model, [`SHEET_MOTIONS_PER_ROW`] motions asked for it (each continuing a
+/// training window of it), named `category_k`. Returns the categories.
+pub fn category_sheet(
+    m: &Run,
+    spec: &RunSpec,
+    frames: usize,
+    columns: usize,
+    path: &Path,
+) -> Result<Vec<String>, EvalError> {
+    let config = m.model.model.config();
+    let mut motions = Vec::new();
+    for (row, name) in config.categories.iter().enumerate() {
+        let category = name.parse().map_err(EvalError::Invalid)?;
+        let ask = Ask {
+            row: row + 1,
+            guidance: spec.guidance,
+        };
+        let n = SHEET_MOTIONS_PER_ROW;
+        for (k, x) in m
+            .sample_asked(Some((category, ask)), n, frames, spec.context, spec.seed)?
+            .iter()
+            .enumerate()
+        {
+            motions.push(m.motion(format!("{name}_{k}"), x));
+        }
+    }
+    contact_sheet(path, &motions, columns)?;
+    Ok(config.categories.clone())
 }
 
 /// Generate `o.n` motions from the run of `spec` (each continuing
@@ -89,7 +125,7 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
     if o.reconstruct > 0 {
         let w = m.split(&spec.split)?;
         let idx: Vec<usize> = (0..w.n.min(o.reconstruct)).collect();
-        let (real, rec) = m.reconstruct(w, &idx)?;
+        let (real, rec) = m.reconstruct(&spec.split, &idx)?;
         for (k, (r, x)) in real.iter().zip(&rec).enumerate() {
             pairs.push(m.motion(format!("{}_{k:03}", spec.split), r));
             pairs.push(m.motion(format!("recon_{k:03}"), x));
@@ -117,7 +153,18 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
         motions: &read_back,
     });
     write_viewer(&out.join("viewer.html"), &sets)?;
+    let category_sheet = match m.ask {
+        None if !m.model.model.config().categories.is_empty() => category_sheet(
+            &m,
+            spec,
+            o.frames,
+            o.sheet_columns,
+            &out.join("category_sheet.png"),
+        )?,
+        _ => Vec::new(),
+    };
     Ok(Written {
+        category_sheet,
         reconstructed: pairs.len() / 2,
         epoch: m.meta.epoch,
         seconds,

@@ -64,7 +64,7 @@ pub const CELL_WIDTH: u32 = 64;
 /// Height of one stick-figure cell of the contact sheet, in pixels.
 const CELL_HEIGHT: u32 = 110;
 /// Motions per row of the contact sheet.
-const SHEET_MOTIONS_PER_ROW: usize = 4;
+pub const SHEET_MOTIONS_PER_ROW: usize = 4;
 
 /// The frames a contact sheet shows of a motion of `len` frames in
 /// `columns` columns: evenly spaced from frame 0 to the last frame

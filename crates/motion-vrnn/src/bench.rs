@@ -72,10 +72,10 @@ pub fn time_steps(
                 let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, device)?;
                 let start = std::time::Instant::now();
                 let grads = if path == "fused" {
-                    sharded(&m.model, &x, &eps, feed.as_ref(), Some((1.0, &vars)))?.1
+                    sharded(&m.model, &x, &eps, feed.as_ref(), None, Some((1.0, &vars)))?.1
                 } else {
                     crate::blocks::reference(|| {
-                        let l = m.model.losses(&x, &eps, feed.as_ref())?;
+                        let l = m.model.losses(&x, &eps, feed.as_ref(), None)?;
                         ((&l.recon + &l.kl)? + &l.extra)?.backward().map(Some)
                     })?
                 };
@@ -91,9 +91,9 @@ pub fn time_steps(
                 let eps = noise(5, k, t, 36, model.latent, device)?;
                 let start = std::time::Instant::now();
                 let s = if path == "fused" {
-                    m.model.sample(&eps, None)?
+                    m.model.sample(&eps, None, None)?
                 } else {
-                    crate::blocks::reference(|| m.model.sample(&eps, None))?
+                    crate::blocks::reference(|| m.model.sample(&eps, None, None))?
                 };
                 let _ = s.sum_all()?.to_scalar::<f32>()?;
                 sample.push(start.elapsed().as_secs_f64());

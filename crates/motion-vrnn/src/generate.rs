@@ -55,35 +55,63 @@ pub fn windows_of(w: &Windows) -> Vec<Vec<f32>> {
 /// frames, about half a second at 30 fps.
 pub const CONTEXT: usize = 16;
 
-/// `n` motions of `frames` frames sampled from the prior, normalised
-/// `[n][frames × features]`. Each continues the first `context` frames of a
-/// window of `starts` drawn at random (seeded by `seed`): the model reads
+/// How generated motions are rolled out ([`sample_windows`],
+/// [`continue_windows`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rollout {
+    /// Frames per motion (the start frame included).
+    pub frames: usize,
+    /// Real frames each motion continues.
+    pub context: usize,
+    /// Seed of the contexts drawn and of the noise.
+    pub seed: u64,
+    /// The category asked for (a conditioned model only; None: none).
+    pub ask: Option<Ask>,
+}
+
+/// A category asked of a conditioned model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ask {
+    /// Its row of the condition table ([`crate::model::Config::category_row`]).
+    pub row: usize,
+    /// Guidance scale ([`crate::model::Config::condition`]; 1: the
+    /// conditional model as trained).
+    pub guidance: f64,
+}
+
+/// `n` picks among `pool` windows (`pool` of them, indices `0..pool`),
+/// drawn at random from `seed`, as [`sample_windows`] draws its contexts.
+pub fn picks(seed: u64, n: usize, pool: usize) -> Vec<usize> {
+    let mut rng = crate::rng::Rng::new(seed, 0x57A7);
+    (0..n)
+        .map(|_| ((rng.uniform() * pool as f64) as usize).min(pool.max(1) - 1))
+        .collect()
+}
+
+/// `n` motions of `o.frames` frames sampled from the prior, normalised
+/// `[n][frames × features]`. Each continues the first `o.context` frames of a
+/// window of `starts` drawn at random (seeded by `o.seed`): the model reads
 /// them through its posterior, so its state and filters start where that
 /// real motion puts them (standing, walking, turning), and the prior
 /// generates every later frame. The motion is the last context frame (the
 /// pose it starts from) and the `frames − 1` frames generated after it,
 /// joined without a jump ([`crate::model::SEAM_FRAMES`]); the other context
 /// frames are not part of it. A model with `Parts::restart` makes a long
-/// motion in runs, each continuing the last `context` frames made. The noise comes from `seed` too,
-/// so the same model and seed give the same motions.
+/// motion in runs, each continuing the last `context` frames made. The
+/// noise comes from the seed too, so the same model and seed give the same
+/// motions.
 pub fn sample_windows(
     model: &dyn MotionModel,
     starts: &Windows,
     n: usize,
-    frames: usize,
-    context: usize,
-    seed: u64,
+    o: &Rollout,
     device: &Device,
 ) -> candle_core::Result<Vec<Vec<f32>>> {
-    let mut rng = crate::rng::Rng::new(seed, 0x57A7);
-    let picks: Vec<usize> = (0..n)
-        .map(|_| ((rng.uniform() * starts.n as f64) as usize).min(starts.n.max(1) - 1))
-        .collect();
-    continue_windows(model, starts, &picks, frames, context, seed, device)
+    continue_windows(model, starts, &picks(o.seed, n, starts.n), o, device)
 }
 
-/// One motion of `frames` frames per index in `picks`, each continuing the
-/// first `context` frames of that window of `windows`, as
+/// One motion of `o.frames` frames per index in `picks`, each continuing the
+/// first `o.context` frames of that window of `windows`, as
 /// [`sample_windows`] makes them (`eval` continues every window of the split
 /// it measures, once each, so the generated set starts where the real set
 /// does).
@@ -91,12 +119,10 @@ pub fn continue_windows(
     model: &dyn MotionModel,
     windows: &Windows,
     picks: &[usize],
-    frames: usize,
-    context: usize,
-    seed: u64,
+    o: &Rollout,
     device: &Device,
 ) -> candle_core::Result<Vec<Vec<f32>>> {
-    let (starts, n) = (windows, picks.len());
+    let (starts, n, context) = (windows, picks.len(), o.context);
     if starts.n == 0 {
         candle_core::bail!("no windows to start generated motions from");
     }
@@ -112,10 +138,34 @@ pub fn continue_windows(
             starts.length
         );
     }
-    let (latent, k, f) = (model.config().latent, context, starts.features);
+    let cond = match o.ask {
+        Some(a) => model
+            .config()
+            .condition(&vec![Some(a.row); n], a.guidance, device)?,
+        None => None,
+    };
+    roll_out(model, windows, picks, o, cond, device)
+}
+
+/// [`continue_windows`] with the condition weights `cond` (one row per
+/// pick) instead of `o.ask`'s.
+fn roll_out(
+    model: &dyn MotionModel,
+    starts: &Windows,
+    picks: &[usize],
+    o: &Rollout,
+    cond: Option<candle_core::Tensor>,
+    device: &Device,
+) -> candle_core::Result<Vec<Vec<f32>>> {
+    let (latent, k, f, n) = (
+        model.config().latent,
+        o.context,
+        starts.features,
+        picks.len(),
+    );
     // One run of the recurrence, or runs of `segment` new frames, each
     // restarting from a fresh state on the last `k` frames made so far.
-    let frames = frames.max(1);
+    let frames = o.frames.max(1);
     let segment = model
         .config()
         .parts
@@ -129,8 +179,8 @@ pub fn continue_windows(
         // New frames of this run; the first run also gives the start frame
         // (its context's last).
         let new = segment.min(frames - made.max(1));
-        let eps = noise(seed ^ 0x5A3F1E, run, k + new, n, latent, device)?;
-        let x = model.sample(&eps, Some(&context))?;
+        let eps = noise(o.seed ^ 0x5A3F1E, run, k + new, n, latent, device)?;
+        let x = model.sample(&eps, Some(&context), cond.as_ref())?;
         let x = x.narrow(1, k - 1, new + 1)?;
         let v = x.flatten_all()?.to_vec1::<f32>()?;
         for (m, o) in v.chunks((new + 1) * f).zip(out.iter_mut()) {
@@ -179,13 +229,15 @@ pub struct Verdict {
 }
 
 /// Scores models by their generated motion: [`JUDGE_MOTIONS`] motions, each
-/// continuing the first [`CONTEXT`] frames of a training window, measured against the
+/// continuing the first [`CONTEXT`] frames of a training window (a
+/// conditioned model asked for that window's category), measured against the
 /// training windows (at most [`JUDGE_REFERENCE`]), the distribution they start from and the model is fit
 /// to. The Fréchet reference is the validation windows' distance to the
 /// training windows: generated windows should come as close to the training
 /// set as held-out real windows do.
 pub struct Judge<'a> {
     starts: &'a Windows,
+    categories: &'a [crate::data::Category],
     stats: &'a Stats,
     real: MotionStats,
     real_summaries: Vec<Vec<f64>>,
@@ -216,6 +268,7 @@ impl<'a> Judge<'a> {
         });
         Ok(Judge {
             starts: train,
+            categories: data.categories.get("train").map_or(&[], Vec::as_slice),
             stats: &data.stats,
             real: motion_stats(&poses, &options),
             real_summaries,
@@ -247,15 +300,25 @@ impl<'a> Judge<'a> {
     /// Generate with `model` (sampling seed [`JUDGE_SEED`]) and measure.
     pub fn judge(&self, model: &dyn MotionModel, device: &Device) -> Result<Verdict, TrainError> {
         let (n, len, f) = (JUDGE_MOTIONS, self.starts.length, self.starts.features);
-        let gen = sample_windows(
-            model,
-            self.starts,
-            n,
-            self.stretches * len,
-            CONTEXT,
-            JUDGE_SEED,
-            device,
-        )?;
+        let rollout = Rollout {
+            frames: self.stretches * len,
+            context: CONTEXT,
+            seed: JUDGE_SEED,
+            ask: None,
+        };
+        // A conditioned model is asked for each context's own category.
+        let picks = picks(rollout.seed, n, self.starts.n);
+        let categories: Vec<crate::data::Category> = picks
+            .iter()
+            .map(|&i| {
+                let c = self.categories.get(i).copied();
+                c.unwrap_or(crate::data::Category::Other)
+            })
+            .collect();
+        let cond = model
+            .config()
+            .window_condition(&categories, |_| false, device)?;
+        let gen = roll_out(model, self.starts, &picks, &rollout, cond, device)?;
         // A stretch of every motion, re-based to its own start (its
         // features are local), measured and scored.
         let measure = |k: usize| {

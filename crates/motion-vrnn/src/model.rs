@@ -58,6 +58,12 @@ pub struct Config {
     /// [`Config::fit_to`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub body: Option<Body>,
+    /// The categories the model is conditioned on (`walk`, …, in
+    /// [`mocap_ingest::category::Category::ALL`] order; those with training
+    /// windows), filled by training with `--condition category`; empty: an
+    /// unconditioned model (every checkpoint from before conditioning).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub categories: Vec<String>,
 }
 
 impl Default for Config {
@@ -71,6 +77,7 @@ impl Default for Config {
             decoder: [32, 48],
             parts: Parts::default(),
             body: None,
+            categories: Vec::new(),
         }
     }
 }
@@ -197,6 +204,11 @@ pub const MOTION_TEMPERATURE: f64 = 0.7;
 /// (inertialization, as game animation blends one clip into the next).
 pub const SEAM_FRAMES: usize = 10;
 
+/// The name of the condition table's variable ([`Config::categories`]);
+/// it starts at zero, so a conditioned model starts as the unconditioned
+/// one with the same seed ([`crate::train::init_uniform`] leaves it).
+pub const COND_WEIGHT: &str = "cond.weight";
+
 /// The weight of the seam's offset `t` frames after the start frames.
 fn seam_weight(t: usize) -> f64 {
     if t >= SEAM_FRAMES {
@@ -245,6 +257,84 @@ impl Config {
             parts,
             ..Config::default()
         })
+    }
+
+    /// Condition weights `[B, categories + 1]` for sequences asking for
+    /// `asked` (rows of [`Config::categories`], counted from 1; None: no
+    /// category) at guidance scale `guidance`: a sequence asking for row
+    /// `k` weighs row `k` by `guidance` and row 0 by `1 − guidance`, so 1 is
+    /// the plain conditional model, 0 the unconditional one, and above 1
+    /// pushes away from the unconditional model (classifier-free guidance
+    /// on the pre-activations the condition feeds). None for an
+    /// unconditioned model.
+    pub fn condition(
+        &self,
+        asked: &[Option<usize>],
+        guidance: f64,
+        device: &Device,
+    ) -> Result<Option<Tensor>> {
+        let n = self.categories.len() + 1;
+        if n == 1 {
+            return Ok(None);
+        }
+        let mut w = vec![0f32; asked.len() * n];
+        for (row, a) in w.chunks_exact_mut(n).zip(asked) {
+            match a {
+                Some(k) if *k >= 1 && *k < n => {
+                    row[0] = (1.0 - guidance) as f32;
+                    row[*k] = guidance as f32;
+                }
+                Some(k) => candle_core::bail!("category row {k} is out of range (1..{n})"),
+                None => row[0] = 1.0,
+            }
+        }
+        Tensor::from_vec(w, (asked.len(), n), device).map(Some)
+    }
+
+    /// Condition weights for windows of `categories` ([`Config::condition`],
+    /// guidance 1), each dropped to "no category" where `dropped(i)`; None
+    /// for an unconditioned model.
+    pub fn window_condition(
+        &self,
+        categories: &[mocap_ingest::category::Category],
+        dropped: impl Fn(usize) -> bool,
+        device: &Device,
+    ) -> Result<Option<Tensor>> {
+        if self.categories.is_empty() {
+            return Ok(None);
+        }
+        let rows: Vec<Option<usize>> = categories
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                let row = self.categories.iter().position(|n| n == c.name());
+                row.filter(|_| !dropped(i)).map(|k| k + 1)
+            })
+            .collect();
+        self.condition(&rows, 1.0, device)
+    }
+
+    /// The row of the condition table asked for by the category `name`
+    /// (counted from 1, [`Config::condition`]), or an error that says what
+    /// can be asked: an unknown name lists the known ones, a known one the
+    /// model was not trained with lists the model's.
+    pub fn category_row(&self, name: &str) -> std::result::Result<usize, String> {
+        let category: mocap_ingest::category::Category = name.parse()?;
+        if self.categories.is_empty() {
+            return Err(format!(
+                "this model was trained without categories, so it cannot be asked for {category}; train one with `cargo xtask train --condition category`"
+            ));
+        }
+        self.categories
+            .iter()
+            .position(|c| c == category.name())
+            .map(|k| k + 1)
+            .ok_or_else(|| {
+                format!(
+                    "the model was not trained with {category} (its training set had no {category} windows); it knows: {}",
+                    self.categories.join(", ")
+                )
+            })
     }
 
     /// The name in [`MODELS`] of this configuration, if it has one.
@@ -335,10 +425,18 @@ pub trait MotionModel: Send + Sync {
     /// `eps: [T, B, latent]`. With `feed: [B, T]` (0 or 1), the frames
     /// marked 1 reach the recurrence as the model's own prediction
     /// (scheduled sampling); the encoder and the loss still see `x`.
-    fn losses(&self, x: &Tensor, eps: &Tensor, feed: Option<&Tensor>) -> Result<Losses>;
+    /// `cond: [B, categories + 1]` weighs the rows of the condition table
+    /// per sequence ([`Config::condition`]; None: no category).
+    fn losses(
+        &self,
+        x: &Tensor,
+        eps: &Tensor,
+        feed: Option<&Tensor>,
+        cond: Option<&Tensor>,
+    ) -> Result<Losses>;
     /// Reconstructions `[B, T, input]` of real windows: posterior mean,
     /// decoder mean, real frames fed to the recurrence.
-    fn reconstruct(&self, x: &Tensor) -> Result<Tensor>;
+    fn reconstruct(&self, x: &Tensor, cond: Option<&Tensor>) -> Result<Tensor>;
     /// `T` frames per sequence from the prior with noise `eps: [T, B, latent]`,
     /// each decoded frame fed back as the next input. `[B, T, input]`.
     /// With `start: [B, K, input]`, the first `K` frames are those real
@@ -347,7 +445,8 @@ pub trait MotionModel: Send + Sync {
     /// at frame `K`, leaving the last real frame without a jump
     /// ([`SEAM_FRAMES`]). Prior draws use the noise scaled by the model's
     /// [`Parts::temperature`].
-    fn sample(&self, eps: &Tensor, start: Option<&Tensor>) -> Result<Tensor>;
+    fn sample(&self, eps: &Tensor, start: Option<&Tensor>, cond: Option<&Tensor>)
+        -> Result<Tensor>;
 }
 
 /// A dense layer's parameters.
@@ -391,6 +490,42 @@ pub struct Vrnn {
     w_hh: Tensor,
     b_ih: Tensor,
     b_hh: Tensor,
+    /// The condition table `[categories + 1, 2Z + 4H + 2Z + d1]`: row 0 is
+    /// "no category", row `k` the `k`-th of [`Config::categories`]; each row
+    /// is added to the pre-activations of the posterior and the LSTM gates,
+    /// of the prior and of the decoder's first layer ([`Bias`]). None in an
+    /// unconditioned model.
+    cond: Option<Tensor>,
+}
+
+/// One sequence's row of the condition table, cut into what it is added to
+/// (`[B or 1, ·]` each).
+struct Bias {
+    /// The recurrence's per-row input: posterior `2Z`, then gates `4H`.
+    pre: Tensor,
+    /// The prior's `[μ | logit σ]`.
+    prior: Tensor,
+    /// The decoder's first layer, before its ReLU.
+    decoder: Tensor,
+}
+
+impl Bias {
+    /// The same rows for sequences `[B, T, ·]`.
+    fn over_time(&self) -> Result<Bias> {
+        Ok(Bias {
+            pre: self.pre.unsqueeze(1)?,
+            prior: self.prior.unsqueeze(1)?,
+            decoder: self.decoder.unsqueeze(1)?,
+        })
+    }
+}
+
+/// `x` plus the bias where there is one.
+fn plus(x: Tensor, bias: Option<&Tensor>) -> Result<Tensor> {
+    match bias {
+        Some(b) => x.broadcast_add(b),
+        None => Ok(x),
+    }
 }
 
 /// What the recurrence gives per row.
@@ -455,7 +590,37 @@ impl Vrnn {
             w_hh: rnn.get((h4, c.hidden), "weight_hh_l0")?,
             b_ih: rnn.get(h4, "bias_ih_l0")?,
             b_hh: rnn.get(h4, "bias_hh_l0")?,
+            cond: match c.categories.len() {
+                0 => None,
+                n => Some(vb.get_with_hints(
+                    (n + 1, 4 * c.latent + h4 + d1),
+                    COND_WEIGHT,
+                    candle_nn::Init::Const(0.0),
+                )?),
+            },
         })
+    }
+
+    /// The condition's bias rows for `cond` ([`Config::condition`]; None: row
+    /// 0, "no category"), or None for an unconditioned model.
+    fn bias(&self, cond: Option<&Tensor>) -> Result<Option<Bias>> {
+        let c = &self.config;
+        let Some(table) = &self.cond else {
+            if cond.is_some() {
+                candle_core::bail!("this model was trained without categories; train one with --condition category");
+            }
+            return Ok(None);
+        };
+        let e = match cond {
+            Some(w) => w.matmul(table)?,
+            None => table.narrow(0, 0, 1)?,
+        };
+        let (pre, prior) = (2 * c.latent + 4 * c.hidden, 2 * c.latent);
+        Ok(Some(Bias {
+            pre: e.narrow(1, 0, pre)?,
+            prior: e.narrow(1, pre, prior)?,
+            decoder: e.narrow(1, pre + prior, c.decoder[0])?,
+        }))
     }
 
     fn dims(&self) -> ScanDims {
@@ -474,7 +639,13 @@ impl Vrnn {
     /// from the features `feat = features(x)` of `x: [B, T, input]`; the LSTM
     /// reads `fed` instead of `x` where given (scheduled sampling), the
     /// posterior always reads `x`.
-    fn scan(&self, feat: &Tensor, fed: Option<&Tensor>, eps: &Tensor) -> Result<Scan> {
+    fn scan(
+        &self,
+        feat: &Tensor,
+        fed: Option<&Tensor>,
+        eps: &Tensor,
+        bias: Option<&Bias>,
+    ) -> Result<Scan> {
         let c = &self.config;
         let (e2, h, z) = (c.extractor[1], c.hidden, c.latent);
         // What does not depend on the recurrence, for all rows at once: the
@@ -504,6 +675,7 @@ impl Vrnn {
                 D::Minus1,
             )?,
         };
+        let pre = plus(pre, bias.map(|b| &b.pre))?;
         let w = Tensor::cat(
             &[
                 enc.w.narrow(1, e2, h)?.flatten_all()?,
@@ -522,9 +694,15 @@ impl Vrnn {
 
     /// The decoder's layers over rows `[…, Z]` and `[…, H]` (before the
     /// output filter and the skeleton).
-    fn decode_raw(&self, z: &Tensor, h: &Tensor) -> Result<Tensor> {
+    fn decode_raw(&self, z: &Tensor, h: &Tensor, bias: Option<&Bias>) -> Result<Tensor> {
         let u = Tensor::cat(&[z, h], D::Minus1)?;
-        let a = self.decoder[0].forward(&u, Act::Relu)?;
+        let a = match bias {
+            Some(b) => self.decoder[0]
+                .forward(&u, Act::None)?
+                .broadcast_add(&b.decoder)?
+                .relu()?,
+            None => self.decoder[0].forward(&u, Act::Relu)?,
+        };
         let b = self.decoder[1].forward(&a, Act::Relu)?;
         self.decoder[2].forward(&b, Act::None)
     }
@@ -566,8 +744,9 @@ impl Vrnn {
         z: &Tensor,
         h: &Tensor,
         lengths: Option<&Tensor>,
+        bias: Option<&Bias>,
     ) -> Result<(Tensor, Option<Tensor>)> {
-        let o = self.decode_raw(&self.filtered(z)?, h)?;
+        let o = self.decode_raw(&self.filtered(z)?, h, bias)?;
         let rho = self.config.parts.output_filter;
         let o = if rho > 0.0 {
             filter::smooth(&o, rho)?
@@ -663,20 +842,22 @@ impl Vrnn {
         eps: &Tensor,
         mask: &Tensor,
         lengths: Option<&Tensor>,
+        bias: Option<&Bias>,
     ) -> Result<Tensor> {
         let t = x.dim(1)?;
         let prior = stacked(&self.prior[0], &self.prior[1])?;
         let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
         // One round: the recurrence reads `fed` (the real frames when None).
         let round = |fed: Option<&Tensor>| -> Result<Tensor> {
-            let s = self.scan(feat, fed, eps)?;
-            let z = draw(&prior.forward(&s.h, Act::None)?, eps, self.config.latent)?;
+            let s = self.scan(feat, fed, eps, bias)?;
+            let p = plus(prior.forward(&s.h, Act::None)?, bias.map(|b| &b.prior))?;
+            let z = draw(&p, eps, self.config.latent)?;
             let z = if t > 1 {
                 Tensor::cat(&[&eps.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
             } else {
                 eps.clone()
             };
-            let own = self.decode(&z, &s.h, lengths)?.0.detach();
+            let own = self.decode(&z, &s.h, lengths, bias)?.0.detach();
             x + ((own - x)? * &m)?
         };
         let mut fed = round(None)?;
@@ -720,19 +901,28 @@ impl MotionModel for Vrnn {
         &self.config
     }
 
-    fn losses(&self, x: &Tensor, eps: &Tensor, feed: Option<&Tensor>) -> Result<Losses> {
+    fn losses(
+        &self,
+        x: &Tensor,
+        eps: &Tensor,
+        feed: Option<&Tensor>,
+        cond: Option<&Tensor>,
+    ) -> Result<Losses> {
         let b = x.dim(0)? as f64;
         let eps = eps.transpose(0, 1)?.contiguous()?;
         let lengths = self.window_bones(x)?;
         let feat = self.features(x)?;
+        let bias = self.bias(cond)?.map(|b| b.over_time()).transpose()?;
+        let bias = bias.as_ref();
         let fed = match feed {
-            Some(mask) => Some(self.fed_back(x, &feat, &eps, mask, lengths.as_ref())?),
+            Some(mask) => Some(self.fed_back(x, &feat, &eps, mask, lengths.as_ref(), bias)?),
             None => None,
         };
-        let s = self.scan(&feat, fed.as_ref(), &eps)?;
+        let s = self.scan(&feat, fed.as_ref(), &eps, bias)?;
         let p = stacked(&self.prior[0], &self.prior[1])?.forward(&s.h, Act::None)?;
+        let p = plus(p, bias.map(|b| &b.prior))?;
         let kl = gaussian_kl(&s.q, &p)?;
-        let (x_hat, logits) = self.decode(&s.z, &s.h, lengths.as_ref())?;
+        let (x_hat, logits) = self.decode(&s.z, &s.h, lengths.as_ref(), bias)?;
         let recon = squared_error(&x_hat, x)?;
         let mut extra = Tensor::zeros((), DType::F32, x.device())?;
         if let (Some(body), w) = (&self.config.body, self.config.parts.feet) {
@@ -750,19 +940,35 @@ impl MotionModel for Vrnn {
         })
     }
 
-    fn reconstruct(&self, x: &Tensor) -> Result<Tensor> {
+    fn reconstruct(&self, x: &Tensor, cond: Option<&Tensor>) -> Result<Tensor> {
         let (b, t, _) = x.dims3()?;
         let zero = Tensor::zeros((b, t, self.config.latent), DType::F32, x.device())?;
+        let bias = self.bias(cond)?.map(|b| b.over_time()).transpose()?;
         // With ε = 0 the posterior sample is its mean.
-        let s = self.scan(&self.features(x)?, None, &zero)?;
+        let s = self.scan(&self.features(x)?, None, &zero, bias.as_ref())?;
         let lengths = self.window_bones(x)?;
-        Ok(self.decode(&s.z, &s.h, lengths.as_ref())?.0)
+        Ok(self.decode(&s.z, &s.h, lengths.as_ref(), bias.as_ref())?.0)
     }
 
-    fn sample(&self, eps: &Tensor, start: Option<&Tensor>) -> Result<Tensor> {
+    fn sample(
+        &self,
+        eps: &Tensor,
+        start: Option<&Tensor>,
+        cond: Option<&Tensor>,
+    ) -> Result<Tensor> {
         let c = &self.config;
         let (t, b, _) = eps.dims3()?;
         let dev = eps.device();
+        let bias = self.bias(cond)?;
+        let bias = bias.as_ref();
+        // The condition's share of the posterior and of the gates.
+        let (enc_bias, gates_bias) = match bias {
+            Some(b) => (
+                Some(b.pre.narrow(1, 0, 2 * c.latent)?),
+                Some(b.pre.narrow(1, 2 * c.latent, 4 * c.hidden)?),
+            ),
+            None => (None, None),
+        };
         let prior = stacked(&self.prior[0], &self.prior[1])?;
         let encoder = stacked(&self.encoder[0], &self.encoder[1])?;
         let gates_in = Lin {
@@ -803,6 +1009,7 @@ impl MotionModel for Vrnn {
                     let x = s.narrow(1, step, 1)?.squeeze(1)?;
                     let feat = self.features(&x)?;
                     let q = encoder.forward(&Tensor::cat(&[&feat, &h], 1)?, Act::None)?;
+                    let q = plus(q, enc_bias.as_ref())?;
                     (Some((x, feat)), draw(&q, &e, c.latent)?)
                 }
                 None => {
@@ -812,14 +1019,17 @@ impl MotionModel for Vrnn {
                     };
                     match step {
                         0 => (None, e),
-                        _ => (None, draw(&prior.forward(&h, Act::None)?, &e, c.latent)?),
+                        _ => {
+                            let p = plus(prior.forward(&h, Act::None)?, bias.map(|b| &b.prior))?;
+                            (None, draw(&p, &e, c.latent)?)
+                        }
                     }
                 }
             };
             let zd = step_filter(&zf, z.clone(), rho)?;
             // The decoder runs on start frames too, so its output filter has
             // the history it has in training.
-            let o = step_filter(&of, self.decode_raw(&zd, &h)?, rho_out)?;
+            let o = step_filter(&of, self.decode_raw(&zd, &h, bias)?, rho_out)?;
             let (x, feat) = match real {
                 Some(r) => {
                     if step + 1 == k {
@@ -848,6 +1058,7 @@ impl MotionModel for Vrnn {
             of = Some(o);
             let gates = (gates_in.forward(&Tensor::cat(&[&feat, &z], 1)?, Act::None)?
                 + linear(&h, &self.w_hh, &no_bias, Act::None)?)?;
+            let gates = plus(gates, gates_bias.as_ref())?;
             let (hn, cn) = lstm_cell(&gates, &cell)?;
             h = hn;
             cell = cn;

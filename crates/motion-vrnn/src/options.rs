@@ -39,6 +39,28 @@ impl std::str::FromStr for Preset {
     }
 }
 
+/// What a model is conditioned on (`--condition`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConditionOn {
+    /// Nothing (the unconditioned model).
+    None,
+    /// Each window's category ([`crate::train::Conditioning`]).
+    Category,
+}
+
+impl std::str::FromStr for ConditionOn {
+    type Err = String;
+    fn from_str(s: &str) -> Result<ConditionOn, String> {
+        match s {
+            "none" => Ok(ConditionOn::None),
+            "category" => Ok(ConditionOn::Category),
+            _ => Err(format!(
+                "unknown condition {s:?}; choose `category` or `none`"
+            )),
+        }
+    }
+}
+
 /// How the `best` checkpoint is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SelectBy {
@@ -100,6 +122,11 @@ pub struct Overrides {
     pub judge_every: Option<usize>,
     /// Window-long stretches the judge rolls its motions out for.
     pub judge_stretches: Option<usize>,
+    /// What the model is conditioned on.
+    pub condition: Option<ConditionOn>,
+    /// Share of windows trained without their category (with
+    /// `condition: Category`; default [`crate::train::CONDITION_DROPOUT`]).
+    pub condition_dropout: Option<f64>,
 }
 
 impl Overrides {
@@ -153,6 +180,18 @@ impl Overrides {
         }
         if let Some(v) = self.judge_stretches {
             cfg.judge_stretches = (v > 1).then_some(v);
+        }
+        match self.condition {
+            Some(ConditionOn::None) => cfg.condition = None,
+            Some(ConditionOn::Category) => {
+                cfg.condition = Some(crate::train::Conditioning {
+                    dropout: crate::train::CONDITION_DROPOUT,
+                })
+            }
+            None => {}
+        }
+        if let (Some(c), Some(d)) = (&mut cfg.condition, self.condition_dropout) {
+            c.dropout = d;
         }
         let every = match cfg.select {
             Select::Generation { every } => every,

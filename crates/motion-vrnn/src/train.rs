@@ -2,7 +2,7 @@
 //! `best` and `last` checkpoints (safetensors + JSON, written atomically),
 //! exact resume, a NaN guard.
 
-use crate::data::{Dataset, Windows};
+use crate::data::{Category, Dataset, Windows};
 use crate::error::io_err;
 pub use crate::error::TrainError;
 use crate::generate::{Judge, Verdict};
@@ -51,7 +51,23 @@ pub struct TrainConfig {
     /// ([`crate::generate::Judge`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub judge_stretches: Option<usize>,
+    /// Condition the model on each window's category (`--condition
+    /// category`); None: an unconditioned model.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub condition: Option<Conditioning>,
 }
+
+/// Training conditioned on the category of each window's take.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Conditioning {
+    /// Share of training windows shown with no category (drawn per window
+    /// and step from the seed), so the same model also generates without
+    /// one (row 0 of the condition table).
+    pub dropout: f64,
+}
+
+/// The default share of windows trained without their category (MDM's).
+pub const CONDITION_DROPOUT: f64 = 0.1;
 
 /// How training chooses its `best` checkpoint.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -94,6 +110,7 @@ impl TrainConfig {
             select: Select::Loss,
             lr_final: None,
             judge_stretches: None,
+            condition: None,
         }
     }
 
@@ -308,7 +325,9 @@ pub fn init_model(config: &Config, seed: u64, device: &Device) -> Result<Trained
 /// Fill every variable of `varmap`, in name order, with
 /// `U(−1/√fan_in, 1/√fan_in)` drawn from `seed`: a `….weight`'s fan-in is
 /// its second dimension, a `….bias` takes its weight's, and `fixed(name)`
-/// overrides both where it returns one.
+/// overrides both where it returns one. The condition table
+/// ([`crate::model::COND_WEIGHT`]) keeps its zeros and draws nothing, so
+/// the other variables get the values they get without it.
 pub fn init_uniform(
     varmap: &VarMap,
     seed: u64,
@@ -323,7 +342,7 @@ pub fn init_uniform(
         .map(|(n, v)| (n.clone(), v.dims().get(1).copied().unwrap_or(1)))
         .collect();
     let mut rng = Rng::new(seed, 0x1417);
-    for (name, var) in &vars {
+    for (name, var) in vars.iter().filter(|(n, _)| n != crate::model::COND_WEIGHT) {
         let fan = fixed(name).unwrap_or_else(|| {
             let w = name.replace(".bias", ".weight");
             fan_in.get(&w).copied().unwrap_or(1)
@@ -358,12 +377,17 @@ pub fn sharded(
     x: &Tensor,
     eps: &Tensor,
     feed: Option<&Tensor>,
+    cond: Option<&Tensor>,
     grad: Option<(f64, &[Var])>,
 ) -> candle_core::Result<((f32, f32), Option<GradStore>)> {
     let b = x.dim(0)?;
     type Part = ((f64, f64), Vec<Option<Tensor>>);
-    let run = |x: &Tensor, eps: &Tensor, feed: Option<&Tensor>| -> candle_core::Result<Part> {
-        let l: Losses = model.losses(x, eps, feed)?;
+    let run = |x: &Tensor,
+               eps: &Tensor,
+               feed: Option<&Tensor>,
+               cond: Option<&Tensor>|
+     -> candle_core::Result<Part> {
+        let l: Losses = model.losses(x, eps, feed, cond)?;
         let n = x.dim(0)? as f64;
         let scale = n / b as f64;
         let grads = match grad {
@@ -377,7 +401,7 @@ pub fn sharded(
         Ok(((r as f64 * scale, k as f64 * scale), grads))
     };
     let parts: Vec<Part> = if !x.device().is_cpu() || b <= SHARD {
-        vec![run(x, eps, feed)?]
+        vec![run(x, eps, feed, cond)?]
     } else {
         let starts: Vec<usize> = (0..b).step_by(SHARD).collect();
         starts
@@ -385,7 +409,13 @@ pub fn sharded(
             .map(|&s| {
                 let n = SHARD.min(b - s);
                 let feed = feed.map(|f| f.narrow(0, s, n)).transpose()?;
-                run(&x.narrow(0, s, n)?, &eps.narrow(1, s, n)?, feed.as_ref())
+                let cond = cond.map(|c| c.narrow(0, s, n)).transpose()?;
+                run(
+                    &x.narrow(0, s, n)?,
+                    &eps.narrow(1, s, n)?,
+                    feed.as_ref(),
+                    cond.as_ref(),
+                )
             })
             .collect::<candle_core::Result<_>>()?
     };
@@ -423,10 +453,12 @@ pub fn sum_gradients(vars: &[Var], shards: &[&[Option<Tensor>]]) -> candle_core:
     Ok(store)
 }
 
-/// Mean losses over all windows of a split, in batches, with fixed noise.
+/// Mean losses over all windows of a split, in batches, with fixed noise
+/// (a conditioned model reads each window's category of `categories`).
 pub fn evaluate(
     model: &dyn MotionModel,
     windows: &Windows,
+    categories: &[Category],
     batch: usize,
     seed: u64,
     device: &Device,
@@ -444,13 +476,21 @@ pub fn evaluate(
             model.config().latent,
             device,
         )?;
-        let (r, k) = sharded(model, &x, &eps, None, None)?.0;
+        let cats: Vec<Category> = chunk.iter().map(|&i| category(categories, i)).collect();
+        let cond = model.config().window_condition(&cats, |_| false, device)?;
+        let (r, k) = sharded(model, &x, &eps, None, cond.as_ref(), None)?.0;
         let w = chunk.len() as f64;
         recon += r as f64 * w;
         kl += k as f64 * w;
     }
     let n = windows.n.max(1) as f64;
     Ok((recon / n, kl / n))
+}
+
+/// The category of window `i` (`other` past the end of `categories`, as
+/// for a dataset without categories).
+fn category(categories: &[Category], i: usize) -> Category {
+    categories.get(i).copied().unwrap_or(Category::Other)
 }
 
 /// Files of a run directory.
@@ -594,6 +634,22 @@ pub fn train(
     let mut config = config.clone();
     let stats = &data.stats;
     config.model.fit_to(&stats.mean, &stats.std, &train.data);
+    let no_categories = Vec::new();
+    let train_categories = data.categories.get("train").unwrap_or(&no_categories);
+    config.model.categories = match config.condition {
+        Some(c) if !(0.0..1.0).contains(&c.dropout) => {
+            return Err(TrainError::Invalid(format!(
+                "the share of windows trained without their category must be in [0, 1), got {}",
+                c.dropout
+            )))
+        }
+        Some(_) => Category::ALL
+            .iter()
+            .filter(|c| train_categories.contains(c))
+            .map(|c| c.name().to_string())
+            .collect(),
+        None => Vec::new(),
+    };
     let config = &config;
     let t = init_model(&config.model, config.seed, device)?;
     let mut adam = Adam::new(named_vars(&t.varmap), config.adam)?;
@@ -695,8 +751,26 @@ pub fn train(
                 config.feed_share(epoch),
                 device,
             )?;
-            let ((r, k), grads) =
-                sharded(&t.model, &x, &eps, feed.as_ref(), Some((kl_w, &var_list)))?;
+            let cond = match config.condition {
+                Some(c) => {
+                    let mut rng = Rng::new(config.seed ^ 0xC0DE_0000_0000, step);
+                    let drop: Vec<bool> = chunk.iter().map(|_| rng.uniform() < c.dropout).collect();
+                    let cats: Vec<Category> = chunk
+                        .iter()
+                        .map(|&i| category(train_categories, i))
+                        .collect();
+                    config.model.window_condition(&cats, |i| drop[i], device)?
+                }
+                None => None,
+            };
+            let ((r, k), grads) = sharded(
+                &t.model,
+                &x,
+                &eps,
+                feed.as_ref(),
+                cond.as_ref(),
+                Some((kl_w, &var_list)),
+            )?;
             if !(r.is_finite() && k.is_finite()) {
                 return Err(TrainError::NonFinite {
                     step,
@@ -719,7 +793,10 @@ pub fn train(
         }
         let train_secs = started.elapsed().as_secs_f64();
         let (val_recon, val_kl) = match val {
-            Some(v) => evaluate(&t.model, v, config.batch, config.seed, device)?,
+            Some(v) => {
+                let cats = data.categories.get("val").unwrap_or(&no_categories);
+                evaluate(&t.model, v, cats, config.batch, config.seed, device)?
+            }
             None => (sum_r / seen as f64, sum_k / seen as f64),
         };
         let m = EpochMetrics {

@@ -43,7 +43,7 @@ fn zero_initialised_model_gives_the_closed_form_loss() {
     // prior N(0, 1) at t = 0 and N(0, .5) after. Loss = Σ x² + 8·(ln 2 − 3/8).
     let x = Tensor::ones((2, 3, 58), candle_core::DType::F32, &d).unwrap();
     let eps = noise(1, 1, 3, 2, 8, &d).unwrap();
-    let l = m.model.losses(&x, &eps, None).unwrap();
+    let l = m.model.losses(&x, &eps, None, None).unwrap();
     assert!(
         (scalar(&l.recon) - 174.0).abs() < 1e-4,
         "{}",
@@ -65,13 +65,13 @@ fn shapes_of_losses_and_samples() {
     let x = Tensor::randn(0f32, 1.0, (4, 5, 58), &d).unwrap();
     let l = m
         .model
-        .losses(&x, &noise(0, 0, 5, 4, 8, &d).unwrap(), None)
+        .losses(&x, &noise(0, 0, 5, 4, 8, &d).unwrap(), None, None)
         .unwrap();
     assert_eq!(l.recon.dims(), &[] as &[usize]);
     assert_eq!(l.kl.dims(), &[] as &[usize]);
     let s = m
         .model
-        .sample(&noise(0, 1, 7, 3, 8, &d).unwrap(), None)
+        .sample(&noise(0, 1, 7, 3, 8, &d).unwrap(), None, None)
         .unwrap();
     assert_eq!(s.dims(), &[3, 7, 58]);
     // Same seed, same weights.
@@ -104,7 +104,7 @@ fn one_adam_step_lowers_the_loss_on_a_fixed_batch() {
     .unwrap();
     let eps = noise(2, 0, 16, 8, 8, &d).unwrap();
     let loss = |m: &motion_vrnn::Vrnn| {
-        let l = m.losses(&x, &eps, None).unwrap();
+        let l = m.losses(&x, &eps, None, None).unwrap();
         (&l.recon + &l.kl).unwrap()
     };
     let before = loss(&m.model);

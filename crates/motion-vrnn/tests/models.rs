@@ -54,7 +54,15 @@ fn feed(m: &Trained, x: &Tensor) -> Option<Tensor> {
 
 fn grads(t: &Trained, x: &Tensor, eps: &Tensor, w: f64) -> ((f32, f32), Vec<Vec<f32>>) {
     let vars: Vec<Var> = sorted_vars(t).into_iter().map(|v| v.1).collect();
-    let (l, g) = sharded(&t.model, x, eps, feed(t, x).as_ref(), Some((w, &vars))).unwrap();
+    let (l, g) = sharded(
+        &t.model,
+        x,
+        eps,
+        feed(t, x).as_ref(),
+        None,
+        Some((w, &vars)),
+    )
+    .unwrap();
     let g = g.unwrap();
     let v = vars
         .iter()
@@ -123,7 +131,7 @@ fn every_model_matches_autograd() {
         let (x, eps) = batch(5, 9, 12);
         let fed = feed(&m, &x);
         let loss = |m: &dyn MotionModel| {
-            let l = m.losses(&x, &eps, fed.as_ref()).unwrap();
+            let l = m.losses(&x, &eps, fed.as_ref(), None).unwrap();
             ((&l.recon + (&l.kl * 0.5).unwrap()).unwrap() + &l.extra).unwrap()
         };
         let fused = loss(&m.model);
@@ -144,22 +152,22 @@ fn every_model_matches_autograd() {
         }
         // Reconstruction and sampling: the fused path equals the reference.
         let (rf, rr) = (
-            m.model.reconstruct(&x).unwrap(),
-            blocks::reference(|| m.model.reconstruct(&x).unwrap()),
+            m.model.reconstruct(&x, None).unwrap(),
+            blocks::reference(|| m.model.reconstruct(&x, None).unwrap()),
         );
         let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         assert!(rel(&flat(&rf), &flat(&rr)) < 1e-5, "{name}: reconstruct");
         let e = noise(1, 2, 9, 3, 8, &Device::Cpu).unwrap();
         let (sf, sr) = (
-            m.model.sample(&e, None).unwrap(),
-            blocks::reference(|| m.model.sample(&e, None).unwrap()),
+            m.model.sample(&e, None, None).unwrap(),
+            blocks::reference(|| m.model.sample(&e, None, None).unwrap()),
         );
         assert_eq!(sf.dims(), &[3, 9, 58]);
         assert!(rel(&flat(&sf), &flat(&sr)) < 1e-4, "{name}: sample");
         // Started from 2 real frames: those come out unchanged, the rest
         // differs from the unstarted sample.
         let start = x.narrow(0, 0, 3).unwrap().narrow(1, 0, 2).unwrap();
-        let s2 = m.model.sample(&e, Some(&start)).unwrap();
+        let s2 = m.model.sample(&e, Some(&start), None).unwrap();
         assert_eq!(flat(&s2.narrow(1, 0, 2).unwrap()), flat(&start));
         assert_ne!(
             flat(&s2.narrow(1, 2, 7).unwrap()),
@@ -179,7 +187,7 @@ fn fed_back_frames_reach_the_recurrence_only() {
         let (x, eps) = batch(3, 7, 14);
         let losses = |mask: Option<f32>| {
             let f = mask.map(|v| Tensor::full(v, (3, 7), &Device::Cpu).unwrap());
-            let l = m.model.losses(&x, &eps, f.as_ref()).unwrap();
+            let l = m.model.losses(&x, &eps, f.as_ref(), None).unwrap();
             (
                 l.recon.to_scalar::<f32>().unwrap(),
                 l.kl.to_scalar::<f32>().unwrap(),
@@ -203,8 +211,8 @@ fn fed_back_frames_reach_the_recurrence_only() {
         let (x1, e1) = (x.narrow(1, 0, 1).unwrap(), eps.narrow(0, 0, 1).unwrap());
         let one = Tensor::ones((3, 1), candle_core::DType::F32, &Device::Cpu).unwrap();
         let (a, b) = (
-            m.model.losses(&x1, &e1, None).unwrap(),
-            m.model.losses(&x1, &e1, Some(&one)).unwrap(),
+            m.model.losses(&x1, &e1, None, None).unwrap(),
+            m.model.losses(&x1, &e1, Some(&one), None).unwrap(),
         );
         assert_eq!(
             a.kl.to_scalar::<f32>().unwrap(),
@@ -235,7 +243,7 @@ fn a_second_round_rolls_out_runs_of_fed_frames() {
     let (x, eps) = batch(3, 8, 21);
     let losses = |m: &Trained, mask: &[f32]| {
         let f = Tensor::from_vec(mask.repeat(3), (3, 8), &Device::Cpu).unwrap();
-        let l = m.model.losses(&x, &eps, Some(&f)).unwrap();
+        let l = m.model.losses(&x, &eps, Some(&f), None).unwrap();
         [&l.recon, &l.kl].map(|v| v.to_scalar::<f32>().unwrap())
     };
     let single = [0., 0., 0., 1., 0., 0., 0., 0.];
@@ -282,13 +290,13 @@ fn the_temperature_scales_the_prior_noise_only() {
         .unwrap();
         let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
         let (x8, eps) = batch(2, 6, 3);
-        let loss = |m: &Trained| flat(m.model.losses(&x8, &eps, None).unwrap().recon);
+        let loss = |m: &Trained| flat(m.model.losses(&x8, &eps, None, None).unwrap().recon);
         m.model.set_temperature(None).unwrap();
-        let want = flat(m.model.sample(&halved, Some(&start)).unwrap());
-        let plain = flat(m.model.sample(&e, Some(&start)).unwrap());
+        let want = flat(m.model.sample(&halved, Some(&start), None).unwrap());
+        let plain = flat(m.model.sample(&e, Some(&start), None).unwrap());
         let l1 = loss(&m);
         m.model.set_temperature(Some(0.5)).unwrap();
-        let got = flat(m.model.sample(&e, Some(&start)).unwrap());
+        let got = flat(m.model.sample(&e, Some(&start), None).unwrap());
         assert!(rel(&got, &want) < 1e-6, "{name}");
         assert!(rel(&got, &plain) > 1e-3, "{name}");
         assert_eq!(loss(&m), l1, "{name}");
@@ -361,7 +369,7 @@ fn skeleton_models_keep_their_bones() {
     };
     let s = m
         .model
-        .sample(&noise(3, 3, 12, 2, 8, &Device::Cpu).unwrap(), None)
+        .sample(&noise(3, 3, 12, 2, 8, &Device::Cpu).unwrap(), None, None)
         .unwrap();
     for (i, l) in lengths(&raw(&s)).iter().enumerate() {
         let want = body.bones[i % 18];
@@ -372,7 +380,7 @@ fn skeleton_models_keep_their_bones() {
         );
     }
     let (x, _) = batch(2, 6, 21);
-    let r = m.model.reconstruct(&x).unwrap();
+    let r = m.model.reconstruct(&x, None).unwrap();
     let (got, real) = (lengths(&raw(&r)), lengths(&raw(&x)));
     for w in 0..2 {
         for b in 0..18 {

@@ -1,0 +1,596 @@
+//! Motion to order, measured the way the field measures conditioned
+//! generation (ACTOR, MDM): a model trained with `--condition category` is
+//! asked for each category in turn, and the motion classifier
+//! (`train-classifier`) says whether it got that category; the plain
+//! measures say whether a `walk` moves at a walking speed.
+//!
+//! Per category with at least [`MIN_TRAIN_WINDOWS`] training windows,
+//! [`PER_CATEGORY`] motions asked for it, each continuing a training window
+//! of it, beside the same contexts continued with no category asked (row 0
+//! of the condition table): the second shows what the contexts alone give.
+
+use crate::run::{Run, RunSpec};
+use crate::EvalError;
+use mocap_ingest::category::Category;
+use mocap_ingest::Pose;
+use motion_metrics::{motion_stats, MotionStats, Options};
+use motion_vrnn::classifier::{self, Classifier, Outputs};
+use motion_vrnn::generate::{self, to_poses, Ask};
+use motion_vrnn::MotionModel;
+use serde::{Deserialize, Serialize};
+
+/// Motions asked for each category.
+pub const PER_CATEGORY: usize = 64;
+
+/// Categories with fewer training windows are left out of the goals.
+pub const MIN_TRAIN_WINDOWS: usize = 30;
+
+/// Draws of real windows for the real-vs-real spread of a category.
+pub const REAL_DRAWS: usize = 20;
+
+/// The plain measures of one group of windows (`docs/metrics.md`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Plain {
+    /// Windows in the group.
+    pub windows: usize,
+    /// Hips horizontal speed, m/s.
+    pub speed_m_s: f64,
+    /// Share of foot-frames in contact.
+    pub contact: f64,
+    /// Mean jerk, m/s³.
+    pub jerk_m_s3: f64,
+    /// APD, m (None below two windows).
+    pub apd_m: Option<f64>,
+}
+
+/// The plain measures of `poses` (None when empty).
+pub fn plain(poses: &[Vec<Pose>]) -> Option<Plain> {
+    if poses.is_empty() {
+        return None;
+    }
+    let m = motion_stats(poses, &Options::default());
+    Some(Plain {
+        windows: poses.len(),
+        speed_m_s: m.root_speed_m_s,
+        contact: m.contact_share,
+        jerk_m_s3: m.jerk_m_s3,
+        apd_m: (poses.len() > 1).then_some(m.apd_m),
+    })
+}
+
+/// One category asked for.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Asked {
+    /// The category.
+    pub category: String,
+    /// Its training windows.
+    pub train_windows: usize,
+    /// Its test windows.
+    pub test_windows: usize,
+    /// Share of its real test windows the classifier recognises (None
+    /// without test windows).
+    pub real_accuracy: Option<f64>,
+    /// Share of the motions asked for it recognised as it.
+    pub accuracy: f64,
+    /// Share of the same contexts continued without a category recognised
+    /// as it.
+    pub accuracy_unasked: f64,
+    /// Fréchet distance (classifier features) of the motions asked for it
+    /// to its real test windows (None below two test windows).
+    pub frechet: Option<f64>,
+    /// The same for its real training windows (the reference).
+    pub frechet_reference: Option<f64>,
+    /// Its real windows (every split).
+    pub real: Plain,
+    /// The motions asked for it.
+    pub generated: Plain,
+    /// The same contexts continued without a category.
+    pub unasked: Plain,
+    /// Smallest and largest ratio of hips speed, then of contact share, of
+    /// [`REAL_DRAWS`] draws of half its real windows to all of them.
+    pub real_spread: [(f64, f64); 2],
+}
+
+impl Asked {
+    /// Whether the category counts for the goals.
+    pub fn in_goals(&self) -> bool {
+        self.train_windows >= MIN_TRAIN_WINDOWS
+    }
+
+    /// The goals of issue 25 it misses: recognised at least 0.9 × as often
+    /// as its real test windows, hips speed and contact share 0.75–1.25 ×
+    /// its real windows'.
+    pub fn misses(&self) -> Vec<&'static str> {
+        let mut m = Vec::new();
+        if let Some(r) = self.real_accuracy {
+            if self.accuracy < 0.9 * r {
+                m.push("recognition");
+            }
+        }
+        let band = |g: f64, r: f64| r > 0.0 && (0.75..=1.25).contains(&(g / r));
+        if !band(self.generated.speed_m_s, self.real.speed_m_s) {
+            m.push("speed");
+        }
+        if !band(self.generated.contact, self.real.contact) {
+            m.push("contact");
+        }
+        m
+    }
+}
+
+/// Every category asked for (`eval.json`'s `classifier.asked`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AskedSet {
+    /// Guidance scale.
+    pub guidance: f64,
+    /// Motions per category.
+    pub per_category: usize,
+    /// Per category of the model.
+    pub categories: Vec<Asked>,
+    /// Fréchet distance (classifier features) of every motion asked for to
+    /// the real test windows.
+    pub frechet: f64,
+    /// Diversity of every motion asked for.
+    pub diversity: Option<f64>,
+    /// Multimodality by the category asked for.
+    pub multimodality: Option<f64>,
+    /// Every measure of every motion asked for (the unconditioned goals
+    /// hold for the whole set).
+    pub generated: MotionStats,
+    /// Every measure of every real window.
+    pub real: MotionStats,
+    /// Fréchet distance (window summaries, `docs/metrics.md`) of every
+    /// motion asked for to the test windows, and of the training windows
+    /// to them (the reference).
+    pub frechet_summaries: (f64, f64),
+}
+
+/// What the classifier made of the real windows, per split.
+pub struct RealSeen<'a> {
+    /// `(split, outputs, labels)`.
+    pub splits: Vec<(&'a str, &'a Outputs, &'a [Category])>,
+}
+
+impl RealSeen<'_> {
+    fn of(&self, split: &str) -> Option<&(&str, &Outputs, &[Category])> {
+        self.splits.iter().find(|s| s.0 == split)
+    }
+
+    /// The features of `split`'s windows labelled `c`.
+    fn features(&self, split: &str, c: Category) -> Vec<Vec<f32>> {
+        self.of(split).map_or(Vec::new(), |(_, o, l)| {
+            o.features
+                .iter()
+                .zip(l.iter())
+                .filter(|(_, &x)| x == c)
+                .map(|(f, _)| f.clone())
+                .collect()
+        })
+    }
+}
+
+/// Ask the conditioned run `m` for each of its categories and measure what
+/// comes back with the classifier `c`; None for an unconditioned model.
+pub fn ask_each(
+    m: &Run,
+    spec: &RunSpec,
+    c: &Classifier,
+    seen: &RealSeen,
+) -> Result<Option<AskedSet>, EvalError> {
+    let config = m.model.model.config();
+    if config.categories.is_empty() {
+        return Ok(None);
+    }
+    let train = m.split("train")?;
+    let (len, f) = (train.length, train.features);
+    let opts = Options::default();
+    let global = |x: &Vec<f32>| to_poses(x, &m.data.stats);
+    let mut real_by: Vec<(Category, Vec<Vec<Pose>>)> = Vec::new();
+    let mut all_real: Vec<Vec<Pose>> = Vec::new();
+    for split in crate::horizon::SPLITS {
+        if let Some((w, labels)) = m.data.split(split) {
+            for (x, l) in generate::windows_of(w).iter().zip(labels) {
+                let p = global(x);
+                match real_by.iter_mut().find(|r| r.0 == *l) {
+                    Some(r) => r.1.push(p.clone()),
+                    None => real_by.push((*l, vec![p.clone()])),
+                }
+                all_real.push(p);
+            }
+        }
+    }
+    let count = |split: &str, c: Category| {
+        m.data
+            .categories
+            .get(split)
+            .map_or(0, |l| l.iter().filter(|&&x| x == c).count())
+    };
+    let (mut out, mut all_gen, mut all_feat, mut all_labels) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (row, name) in config.categories.iter().enumerate() {
+        let cat: Category = name.parse().map_err(EvalError::Invalid)?;
+        let ask = Ask {
+            row: row + 1,
+            guidance: spec.guidance,
+        };
+        let gen = m.sample_asked(Some((cat, ask)), PER_CATEGORY, len, spec.context, spec.seed)?;
+        // The same contexts and noise, no category.
+        let none = Ask {
+            row: row + 1,
+            guidance: 0.0,
+        };
+        let unasked = m.sample_asked(
+            Some((cat, none)),
+            PER_CATEGORY,
+            len,
+            spec.context,
+            spec.seed,
+        )?;
+        let seen_by = |set: &[Vec<f32>]| c.outputs(&as_windows(set, len, f), &m.device);
+        let (go, uo) = (seen_by(&gen)?, seen_by(&unasked)?);
+        let share = |o: &Outputs| {
+            let p = o.predicted();
+            p.iter().filter(|&&x| x == cat).count() as f64 / p.len().max(1) as f64
+        };
+        let test_f = seen.features("test", cat);
+        let real_accuracy = seen
+            .of("test")
+            .and_then(|(_, o, l)| classifier::accuracy(&o.predicted(), l).of(cat));
+        let two = |v: &[Vec<f32>]| (v.len() >= 2).then_some(());
+        let real = real_by
+            .iter()
+            .find(|r| r.0 == cat)
+            .map_or(&[][..], |r| r.1.as_slice());
+        let gen_poses: Vec<Vec<Pose>> = gen.iter().map(global).collect();
+        let un_poses: Vec<Vec<Pose>> = unasked.iter().map(global).collect();
+        let missing = || EvalError::Invalid(format!("no windows of {cat}"));
+        out.push(Asked {
+            category: cat.name().to_string(),
+            train_windows: count("train", cat),
+            test_windows: count("test", cat),
+            real_accuracy,
+            accuracy: share(&go),
+            accuracy_unasked: share(&uo),
+            frechet: two(&test_f).map(|_| classifier::feature_frechet(&go.features, &test_f)),
+            frechet_reference: two(&test_f)
+                .map(|_| classifier::feature_frechet(&seen.features("train", cat), &test_f)),
+            real: plain(real).ok_or_else(missing)?,
+            generated: plain(&gen_poses).ok_or_else(missing)?,
+            unasked: plain(&un_poses).ok_or_else(missing)?,
+            real_spread: spread(real, spec.seed),
+        });
+        all_labels.extend(std::iter::repeat_n(cat, gen.len()));
+        all_feat.extend(go.features);
+        all_gen.extend(gen);
+    }
+    let test_all = seen.of("test").map_or(Vec::new(), |s| s.1.features.clone());
+    let gen_poses: Vec<Vec<Pose>> = all_gen.iter().map(global).collect();
+    let summaries = |set: &[Vec<f32>]| generate::summaries(set, f);
+    let test_s = summaries(&generate::windows_of(m.split(&spec.split)?));
+    Ok(Some(AskedSet {
+        guidance: spec.guidance,
+        per_category: PER_CATEGORY,
+        categories: out,
+        frechet: classifier::feature_frechet(&all_feat, &test_all),
+        diversity: classifier::diversity(&all_feat, classifier::DIVERSITY_SAMPLES, spec.seed),
+        multimodality: classifier::multimodality(
+            &all_feat,
+            &all_labels,
+            classifier::MULTIMODALITY_SAMPLES,
+            spec.seed,
+        ),
+        generated: motion_stats(&gen_poses, &opts),
+        real: motion_stats(&all_real, &opts),
+        frechet_summaries: (
+            motion_metrics::frechet(&test_s, &summaries(&all_gen)),
+            motion_metrics::frechet(&test_s, &summaries(&generate::windows_of(train))),
+        ),
+    }))
+}
+
+/// Ratios of hips speed and contact share of [`REAL_DRAWS`] draws of half
+/// of `real` to all of it: smallest and largest of each.
+fn spread(real: &[Vec<Pose>], seed: u64) -> [(f64, f64); 2] {
+    let opts = Options::default();
+    let all = motion_stats(real, &opts);
+    let k = (real.len() / 2).max(1);
+    let mut rng = motion_vrnn::rng::Rng::new(seed, 0x5B2E);
+    let mut out = [(f64::INFINITY, f64::NEG_INFINITY); 2];
+    for _ in 0..REAL_DRAWS {
+        let pick: Vec<Vec<Pose>> = rng
+            .permutation(real.len())
+            .into_iter()
+            .take(k)
+            .map(|i| real[i].clone())
+            .collect();
+        let s = motion_stats(&pick, &opts);
+        for (o, (g, r)) in out.iter_mut().zip([
+            (s.root_speed_m_s, all.root_speed_m_s),
+            (s.contact_share, all.contact_share),
+        ]) {
+            let ratio = g / r.max(1e-12);
+            *o = (o.0.min(ratio), o.1.max(ratio));
+        }
+    }
+    out
+}
+
+/// `v` as one set of `length`-frame windows.
+pub(crate) fn as_windows(
+    v: &[Vec<f32>],
+    length: usize,
+    features: usize,
+) -> motion_vrnn::data::Windows {
+    motion_vrnn::data::Windows {
+        data: v.concat(),
+        n: v.len(),
+        length,
+        features,
+    }
+}
+
+/// The section of `eval.md`.
+pub fn markdown(a: &AskedSet) -> String {
+    let opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.1}"));
+    let mut s = format!(
+        "\n## Asked for each category (guidance {})\n\n\
+         {} motions per category, each continuing a training window of it; beside them (\"unasked\") the \
+         same contexts and noise with no category asked. Recognition: the share the classifier puts in the \
+         category asked for, against its share on the real test windows of it. Speed and contact: real \
+         windows of the category (all splits) → asked → unasked, with the ratio of draws of half the real \
+         windows to all of them in brackets. Goals (categories with at least {} training windows): \
+         recognised ≥ 0.9 × real, speed and contact 0.75–1.25 × real.\n\n\
+         | category | train / test windows | recognised: real test → asked (unasked) | hips speed m/s | contact | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
+        a.guidance, a.per_category, MIN_TRAIN_WINDOWS
+    );
+    for c in &a.categories {
+        let pct = |v: f64| format!("{:.0} %", 100.0 * v);
+        let misses = match (c.in_goals(), c.misses()) {
+            (false, _) => "(too few windows)".to_string(),
+            (true, m) if m.is_empty() => "none".to_string(),
+            (true, m) => m.join(", "),
+        };
+        s += &format!(
+            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
+            c.category,
+            c.train_windows,
+            c.test_windows,
+            c.real_accuracy.map_or("n/a".into(), pct),
+            pct(c.accuracy),
+            pct(c.accuracy_unasked),
+            c.real.speed_m_s,
+            c.generated.speed_m_s,
+            c.unasked.speed_m_s,
+            c.real_spread[0].0,
+            c.real_spread[0].1,
+            c.real.contact,
+            c.generated.contact,
+            c.unasked.contact,
+            c.real_spread[1].0,
+            c.real_spread[1].1,
+            c.real.jerk_m_s3,
+            c.generated.jerk_m_s3,
+            c.real.apd_m.map_or("–".into(), |v| format!("{v:.2}")),
+            c.generated.apd_m.map_or("–".into(), |v| format!("{v:.2}")),
+            opt(c.frechet),
+            opt(c.frechet_reference),
+            misses
+        );
+    }
+    let (g, r) = (&a.generated, &a.real);
+    s += &format!(
+        "\nEvery motion asked for, against every real window: jerk {:.2}×, bone cv {:.2} %, skating in contact {:.2}×, \
+         hips height {:.2}×, hips speed {:.2}×; Fréchet (window summaries) {:.1} (train windows {:.1}); \
+         feature Fréchet {:.1}; diversity {}; multimodality {}.\n",
+        g.jerk_m_s3 / r.jerk_m_s3,
+        100.0 * g.bone_cv,
+        g.skate_in_contact / r.skate_in_contact,
+        g.hip_height_m / r.hip_height_m,
+        g.root_speed_m_s / r.root_speed_m_s,
+        a.frechet_summaries.0,
+        a.frechet_summaries.1,
+        a.frechet,
+        opt(a.diversity),
+        opt(a.multimodality),
+    );
+    s
+}
+
+/// Load the run of `spec` with every split and the classifier in `dir`,
+/// and ask the run's model for each of its categories.
+pub fn evaluate(spec: &RunSpec, dir: &std::path::Path) -> Result<AskedSet, EvalError> {
+    let m = Run::load(spec, &crate::horizon::SPLITS)?;
+    let (c, _) = Classifier::load(dir, &m.device)?;
+    let mut outputs = Vec::new();
+    for split in crate::horizon::SPLITS {
+        if let Some((w, labels)) = m.data.split(split) {
+            outputs.push((split, c.outputs(w, &m.device)?, labels));
+        }
+    }
+    let seen = RealSeen {
+        splits: outputs.iter().map(|(s, o, l)| (*s, o, *l)).collect(),
+    };
+    ask_each(&m, spec, &c, &seen)?.ok_or_else(|| {
+        EvalError::Invalid(format!(
+            "{}: the model was trained without categories (train it with --condition category)",
+            spec.run.display()
+        ))
+    })
+}
+
+/// The results page's section: every category asked of the seeds' runs
+/// (`(seed, asked)`), mean ± std over the seeds, the goals met on the mean
+/// and the seeds that miss.
+pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
+    let Some((_, first)) = runs.first() else {
+        return String::new();
+    };
+    let ms = |v: Vec<f64>, p: usize| {
+        let (m, s) = crate::mean_std(&v);
+        format!("{m:.p$} ± {s:.p$}")
+    };
+    let mut s = format!(
+        "\n## Motion to order: the default model conditioned on the category (issue 25)\n\n\
+         `cargo xtask train --condition category` (the default model with a learned row per category added to \
+         the pre-activations of the posterior, the LSTM gates, the prior and the decoder's first layer; 10 % of \
+         windows trained without one), {} seeds. Each run is asked for each of its categories \
+         ({} motions each, each continuing a training window of that category, guidance {}) and the motion \
+         classifier (`train-classifier`, seed 0) says what it got; \"unasked\" continues the same contexts with \
+         the same noise and no category (what the contexts alone give). Speed and contact are generated ÷ the \
+         real windows of the category (all splits), with the range of draws of half those real windows in \
+         brackets. Goals for categories with at least {} training windows: recognised ≥ 0.9 × the real test \
+         windows of the category, speed and contact 0.75–1.25×.\n\n\
+         | category | train / test windows | recognised, real test | recognised, asked | recognised, unasked | \
+         hips speed ÷ real | contact ÷ real | goals missed (mean) | seeds that miss |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
+        runs.len(),
+        first.per_category,
+        first.guidance,
+        MIN_TRAIN_WINDOWS
+    );
+    for (k, c) in first.categories.iter().enumerate() {
+        let each: Vec<&Asked> = runs.iter().filter_map(|r| r.1.categories.get(k)).collect();
+        let pct = |f: fn(&Asked) -> f64| ms(each.iter().map(|a| 100.0 * f(a)).collect(), 0);
+        let ratio = |f: fn(&Plain) -> f64| {
+            ms(
+                each.iter().map(|a| f(&a.generated) / f(&a.real)).collect(),
+                2,
+            )
+        };
+        // The goals on the mean over the seeds.
+        let mean =
+            |f: fn(&Asked) -> f64| crate::mean_of(&each.iter().map(|a| f(a)).collect::<Vec<_>>());
+        let mut avg = c.clone();
+        avg.accuracy = mean(|a| a.accuracy);
+        avg.generated.speed_m_s = mean(|a| a.generated.speed_m_s);
+        avg.generated.contact = mean(|a| a.generated.contact);
+        let missed = match (c.in_goals(), avg.misses()) {
+            (false, _) => "(too few training windows)".to_string(),
+            (true, m) if m.is_empty() => "none".into(),
+            (true, m) => m.join(", "),
+        };
+        let seeds: Vec<String> = runs
+            .iter()
+            .filter_map(|(seed, a)| {
+                let m = a.categories.get(k)?.misses();
+                (c.in_goals() && !m.is_empty()).then(|| format!("{seed} ({})", m.join(", ")))
+            })
+            .collect();
+        let spread = |i: usize| format!("[{:.2}–{:.2}]", c.real_spread[i].0, c.real_spread[i].1);
+        s += &format!(
+            "| {} | {} / {} | {} | {} | {} | {} {} | {} {} | {} | {} |\n",
+            c.category,
+            c.train_windows,
+            c.test_windows,
+            c.real_accuracy
+                .map_or("n/a".into(), |a| format!("{:.0} %", 100.0 * a)),
+            pct(|a| a.accuracy),
+            pct(|a| a.accuracy_unasked),
+            ratio(|p| p.speed_m_s),
+            spread(0),
+            ratio(|p| p.contact),
+            spread(1),
+            missed,
+            if seeds.is_empty() {
+                "–".into()
+            } else {
+                seeds.join("; ")
+            }
+        );
+    }
+    let whole = |f: fn(&AskedSet) -> f64, p: usize| ms(runs.iter().map(|r| f(&r.1)).collect(), p);
+    s += &format!(
+        "\nEvery motion asked for (all categories together) against every real window, mean ± std over the seeds \
+         (the unconditioned goals of issue 11): jerk {}×, bone cv {} %, skating in contact {}×, hips height {}×, \
+         hips speed {}×, Fréchet (window summaries, to the test windows) {} against the train windows' {:.1}; \
+         feature Fréchet {}, diversity {}, multimodality (by the category asked) {}.\n\n\
+         One row per category (seed 0, 4 motions each asked for it, 5 columns from the first frame to the last):\n\n\
+         ![one row per category]({sheet})\n",
+        whole(|a| a.generated.jerk_m_s3 / a.real.jerk_m_s3, 2),
+        whole(|a| 100.0 * a.generated.bone_cv, 2),
+        whole(|a| a.generated.skate_in_contact / a.real.skate_in_contact, 2),
+        whole(|a| a.generated.hip_height_m / a.real.hip_height_m, 2),
+        whole(|a| a.generated.root_speed_m_s / a.real.root_speed_m_s, 2),
+        whole(|a| a.frechet_summaries.0, 1),
+        first.frechet_summaries.1,
+        whole(|a| a.frechet, 0),
+        whole(|a| a.diversity.unwrap_or(f64::NAN), 1),
+        whole(|a| a.multimodality.unwrap_or(f64::NAN), 1),
+    );
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plain(speed: f64, contact: f64) -> Plain {
+        Plain {
+            windows: 10,
+            speed_m_s: speed,
+            contact,
+            jerk_m_s3: 100.0,
+            apd_m: Some(1.0),
+        }
+    }
+
+    fn asked(accuracy: f64, speed: f64, contact: f64) -> Asked {
+        Asked {
+            category: "walk".into(),
+            train_windows: 40,
+            test_windows: 5,
+            real_accuracy: Some(0.8),
+            accuracy,
+            accuracy_unasked: 0.1,
+            frechet: None,
+            frechet_reference: None,
+            real: plain(1.0, 0.6),
+            generated: plain(speed, contact),
+            unasked: plain(0.2, 0.9),
+            real_spread: [(0.9, 1.1), (0.95, 1.05)],
+        }
+    }
+
+    #[test]
+    fn the_goals_are_the_bands_of_issue_25() {
+        // 0.9 × 80 % = 72 %: 72.5 % meets it, 71 % does not.
+        assert!(asked(0.725, 1.0, 0.6).misses().is_empty());
+        assert_eq!(asked(0.71, 1.0, 0.6).misses(), ["recognition"]);
+        // Speed 0.75–1.25 × 1.0 m/s, contact 0.75–1.25 × 0.6.
+        assert_eq!(asked(0.9, 0.74, 0.6).misses(), ["speed"]);
+        assert_eq!(asked(0.9, 1.25, 0.76).misses(), ["contact"]);
+        // Without real test windows recognition has no reference.
+        let mut a = asked(0.0, 1.0, 0.6);
+        a.real_accuracy = None;
+        assert!(a.misses().is_empty());
+        a.train_windows = MIN_TRAIN_WINDOWS - 1;
+        assert!(!a.in_goals());
+    }
+
+    #[test]
+    fn the_page_averages_seeds_and_names_those_that_miss() {
+        let set = |a: Asked| AskedSet {
+            guidance: 1.0,
+            per_category: 64,
+            categories: vec![a],
+            frechet: 1.0,
+            diversity: Some(2.0),
+            multimodality: Some(3.0),
+            generated: MotionStats::default(),
+            real: MotionStats::default(),
+            frechet_summaries: (60.0, 70.0),
+        };
+        // Seed 0 is too slow, seed 1 fast enough: the mean (0.8) meets it.
+        let runs = [
+            (0, set(asked(0.9, 0.6, 0.6))),
+            (1, set(asked(0.9, 1.0, 0.6))),
+        ];
+        let s = page_section(&runs, "sheet.png");
+        let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
+        assert!(row.contains("90 ± 0"), "{row}");
+        assert!(row.contains("0.80 ± 0.28"), "{row}");
+        assert!(row.contains("| none | 0 (speed) |"), "{row}");
+        assert!(s.contains("![one row per category](sheet.png)"));
+    }
+}
