@@ -191,6 +191,12 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         w.epoch,
         w.seconds
     );
+    if let Some(c) = &a.run.category {
+        println!(
+            "asked for {c} (guidance {}), each continuing a {c} training window",
+            a.run.guidance
+        );
+    }
     println!("wrote {}:", out.display());
     println!(
         "  samples.parquet, samples.json   motions (motion, frame, joint, x, y, z; CMU units)"
