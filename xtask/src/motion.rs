@@ -44,7 +44,8 @@ pub struct RunArgs {
     #[arg(long)]
     pub restart: Option<usize>,
     /// Generate this category (`walk`, `run`, …; a model trained with
-    /// `--condition category`), from training contexts of it.
+    /// `--condition category`), from training contexts of it; `own`: each
+    /// motion the category of the window it continues.
     #[arg(long)]
     pub category: Option<String>,
     /// Guidance scale of --category (1: as trained; 0: no category; above

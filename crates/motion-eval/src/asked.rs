@@ -9,7 +9,7 @@
 //! of it, beside the same contexts continued with no category asked (row 0
 //! of the condition table): the second shows what the contexts alone give.
 
-use crate::run::{Run, RunSpec};
+use crate::run::{Asking, Run, RunSpec};
 use crate::EvalError;
 use mocap_ingest::category::Category;
 use mocap_ingest::Pose;
@@ -213,14 +213,14 @@ pub fn ask_each(
             row: row + 1,
             guidance: spec.guidance,
         };
-        let gen = m.sample_asked(Some((cat, ask)), PER_CATEGORY, len, spec.context, spec.seed)?;
+        let gen = m.sample_asked(Asking::One(cat, ask), PER_CATEGORY, len, spec.context, spec.seed)?;
         // The same contexts and noise, no category.
         let none = Ask {
             row: row + 1,
             guidance: 0.0,
         };
         let unasked = m.sample_asked(
-            Some((cat, none)),
+            Asking::One(cat, none),
             PER_CATEGORY,
             len,
             spec.context,

@@ -45,6 +45,9 @@ pub struct CompareOptions {
 /// trained with `--condition category`.
 pub const CONDITIONED: &str = "motion-category";
 
+/// What [`CONDITIONED`] is, on the results page.
+const CONDITIONED_WHAT: &str = "`motion` trained with `--condition category`, each generated motion asked for the category of the training window it continues (`--category own`; continuing a test window, that window's category)";
+
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
 
@@ -59,7 +62,14 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
     create_dir(&images)?;
     let mut data = None;
     let mut table: Vec<(String, Vec<SeedRun>)> = Vec::new();
-    for name in &o.models {
+    // Every model, and with a classifier the default model conditioned on
+    // the category, each motion asked for its context's.
+    let mut entries: Vec<(&str, &str, bool)> =
+        o.models.iter().map(|m| (m.as_str(), m.as_str(), false)).collect();
+    if o.classifier.is_some() {
+        entries.push((CONDITIONED, motion_vrnn::model::DEFAULT_MODEL, true));
+    }
+    for (name, model, conditioned) in entries {
         let mut runs = Vec::new();
         for seed in 0..o.seeds {
             let dir = o.out.join(name).join(format!("seed-{seed}"));
@@ -82,11 +92,14 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                         )?)
                     }
                 };
-                train_one(d, name, seed, o.epochs, false, &dir)
+                train_one(d, model, seed, o.epochs, conditioned, &dir)
                     .map_err(|e| e.within(format!("training {name} seed {seed}")))?;
             }
             let seconds = train_seconds(&dir).unwrap_or(started.elapsed().as_secs_f64());
-            let spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
+            let mut spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
+            if conditioned {
+                spec.category = Some(crate::run::OWN.into());
+            }
             let kept = dir.join(REPORT_FILE);
             let report = match std::fs::read_to_string(&kept) {
                 Ok(text) if o.reuse_reports => {
@@ -135,7 +148,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                 report,
             });
         }
-        table.push((name.clone(), runs));
+        table.push((name.to_string(), runs));
     }
     let mut md = page(o, &table)?;
     if let Some(classifier) = &o.classifier {
@@ -145,9 +158,9 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
     Ok(md)
 }
 
-/// Train (or reuse) the default model conditioned on the category with
-/// every seed, ask each run for every category, draw seed 0's category
-/// sheet; the results page's section.
+/// Ask each seed's run of the default model conditioned on the category
+/// (trained with the other models) for every category, draw seed 0's
+/// category sheet; the results page's section.
 fn conditioned(
     o: &CompareOptions,
     classifier: &Path,
@@ -155,28 +168,9 @@ fn conditioned(
     log: &dyn Fn(&str),
 ) -> Result<String, EvalError> {
     let mut runs = Vec::new();
-    let name = motion_vrnn::model::DEFAULT_MODEL;
     for seed in 0..o.seeds {
+        // Trained (or reused) with the other models.
         let dir = o.out.join(CONDITIONED).join(format!("seed-{seed}"));
-        if dir.join(layout::LAST).join(layout::META).exists() {
-            log(&format!(
-                "{CONDITIONED} seed {seed}: reusing {}",
-                dir.display()
-            ));
-        } else {
-            log(&format!(
-                "{CONDITIONED} seed {seed}: training into {}",
-                dir.display()
-            ));
-            let d = motion_vrnn::data::load(&o.data, &["train", "val"]).map_err(|source| {
-                EvalError::Data {
-                    dir: o.data.clone(),
-                    source,
-                }
-            })?;
-            train_one(&d, name, seed, o.epochs, true, &dir)
-                .map_err(|e| e.within(format!("training {CONDITIONED} seed {seed}")))?;
-        }
         let spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
         let kept = dir.join(ASKED_FILE);
         let asked = match std::fs::read_to_string(&kept) {
@@ -191,7 +185,7 @@ fn conditioned(
         };
         if seed == 0 {
             let m = crate::run::Run::load(&spec, &["train"])?;
-            let png = images.join(format!("{CONDITIONED}.png"));
+            let png = images.join(format!("{CONDITIONED}-categories.png"));
             crate::samples::category_sheet(&m, &spec, 128, 5, &png)?;
         }
         log(&format!(
@@ -207,7 +201,7 @@ fn conditioned(
     }
     Ok(crate::asked::page_section(
         &runs,
-        &format!("images/results/{CONDITIONED}.png"),
+        &format!("images/results/{CONDITIONED}-categories.png"),
     ))
 }
 
@@ -464,7 +458,7 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
         let what = motion_vrnn::model::MODELS
             .iter()
             .find(|m| m.0 == name)
-            .map_or("", |m| m.1);
+            .map_or(CONDITIONED_WHAT, |m| m.1);
         let _ = writeln!(s, "- `{name}`: {what}");
     }
     s += "\n";

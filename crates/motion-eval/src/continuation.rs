@@ -2,7 +2,7 @@
 //! model reads; what it generates after them is appended, and the whole is
 //! one motion continuous at the seam (`cargo xtask continue`).
 
-use crate::run::Run;
+use crate::run::{Asking, Run, OWN};
 use crate::EvalError;
 use mocap_ingest::features::{to_global, FeatureVec};
 use mocap_ingest::Pose;
@@ -162,7 +162,15 @@ pub fn continue_clip(
                 frames: generated + 1,
                 context: k,
                 seed,
-                ask: run.ask.map(|a| a.1),
+                ask: match run.ask {
+                    Asking::Nothing => None,
+                    Asking::One(_, a) => Some(a),
+                    Asking::Own(_) => {
+                        return Err(EvalError::Invalid(format!(
+                            "--category {OWN} asks for the category of a training window; a clip has none: name one"
+                        )))
+                    }
+                },
             };
             let x =
                 continue_windows(&run.model.model, &window, &[0], &rollout, &run.device)?.remove(0);

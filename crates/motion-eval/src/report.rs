@@ -141,15 +141,9 @@ pub fn report(
     let t = w.length as f64;
     let idx: Vec<usize> = (0..w.n).collect();
     let (real, rec) = m.reconstruct(&a.split, &idx)?;
-    let rollout = generate::Rollout {
-        frames: w.length,
-        context: a.context,
-        seed: a.seed,
-        ask: m.ask.map(|a| a.1),
-    };
     let gen = match contexts {
         Contexts::Split => {
-            generate::continue_windows(&m.model.model, w, &idx, &rollout, &m.device)?
+            m.continue_asked(m.ask, w, categories, &idx, w.length, a.context, a.seed)?
         }
         Contexts::Train => m.sample(w.n, w.length, a.context, a.seed)?,
     };

@@ -74,8 +74,23 @@ pub struct Run {
     /// What the caller should tell the user (e.g. another dataset than the
     /// run's).
     pub warnings: Vec<String>,
-    /// The category asked for ([`RunSpec::category`]).
-    pub ask: Option<(Category, Ask)>,
+    /// What generated motions are asked for ([`RunSpec::category`]).
+    pub ask: Asking,
+}
+
+/// `--category own`: each motion asks for the category of the window it
+/// continues.
+pub const OWN: &str = "own";
+
+/// What a run's generated motions are asked for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Asking {
+    /// No category (row 0 of a conditioned model; any unconditioned model).
+    Nothing,
+    /// One category for every motion, each continuing a training window of it.
+    One(Category, Ask),
+    /// Each motion the category of the window it continues, at this guidance.
+    Own(f64),
 }
 
 impl Run {
@@ -99,27 +114,32 @@ impl Run {
         if let Some(r) = spec.restart {
             model.model.set_restart(Some(r));
         }
-        let ask = match &spec.category {
+        if !(spec.guidance.is_finite() && spec.guidance >= 0.0) {
+            return Err(EvalError::Invalid(format!(
+                "--guidance must be 0 or more, got {}",
+                spec.guidance
+            )));
+        }
+        let invalid = |e: String| EvalError::Invalid(format!("--category: {}: {e}", ck.display()));
+        let ask = match spec.category.as_deref() {
+            None => Asking::Nothing,
+            Some(OWN) if meta.config.model.categories.is_empty() => {
+                return Err(invalid(format!(
+                    "`{OWN}` asks each motion for its context's category, and this model was trained without categories; train one with `cargo xtask train --condition category`"
+                )))
+            }
+            Some(OWN) => Asking::Own(spec.guidance),
             Some(name) => {
-                let row = meta.config.model.category_row(name).map_err(|e| {
-                    EvalError::Invalid(format!("--category: {}: {e}", ck.display()))
-                })?;
+                let row = meta.config.model.category_row(name).map_err(invalid)?;
                 let category = name.parse().map_err(EvalError::Invalid)?;
-                if !(spec.guidance.is_finite() && spec.guidance >= 0.0) {
-                    return Err(EvalError::Invalid(format!(
-                        "--guidance must be 0 or more, got {}",
-                        spec.guidance
-                    )));
-                }
-                Some((
+                Asking::One(
                     category,
                     Ask {
                         row,
                         guidance: spec.guidance,
                     },
-                ))
+                )
             }
-            None => None,
         };
         let dir = spec
             .data
@@ -173,28 +193,24 @@ impl Run {
         self.sample_asked(self.ask, n, frames, context, seed)
     }
 
-    /// [`Run::sample`] asking for `ask` (None: no category, contexts from
-    /// every training window) instead of the run's own.
+    /// [`Run::sample`] asking for `ask` instead of the run's own.
     pub fn sample_asked(
         &self,
-        ask: Option<(Category, Ask)>,
+        ask: Asking,
         n: usize,
         frames: usize,
         context: usize,
         seed: u64,
     ) -> Result<WindowSet, EvalError> {
-        let (train, categories) = self
-            .data
-            .split("train")
-            .ok_or_else(|| EvalError::NoWindows {
-                dir: self.data.dir.clone(),
-                split: "train".into(),
-            })?;
+        let (train, categories) = self.data.split("train").ok_or_else(|| EvalError::NoWindows {
+            dir: self.data.dir.clone(),
+            split: "train".into(),
+        })?;
         let pool: Vec<usize> = match ask {
-            Some((c, _)) => (0..train.n)
+            Asking::One(c, _) => (0..train.n)
                 .filter(|&i| categories.get(i) == Some(&c))
                 .collect(),
-            None => (0..train.n).collect(),
+            _ => (0..train.n).collect(),
         };
         if pool.is_empty() {
             return Err(EvalError::Invalid(format!(
@@ -202,21 +218,54 @@ impl Run {
                 self.data.dir.display()
             )));
         }
-        let rollout = Rollout {
-            frames,
-            context,
-            seed,
-            ask: ask.map(|a| a.1),
-        };
         let picks: Vec<usize> = generate::picks(seed, n, pool.len())
             .into_iter()
             .map(|i| pool[i])
             .collect();
-        Ok(generate::continue_windows(
-            &self.model.model,
-            train,
-            &picks,
-            &rollout,
+        self.continue_asked(ask, train, categories, &picks, frames, context, seed)
+    }
+
+    /// One motion of `frames` frames per window of `windows` in `picks`
+    /// (whose categories are `categories`), each continuing `context` of
+    /// its frames and asked for `ask`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn continue_asked(
+        &self,
+        ask: Asking,
+        windows: &Windows,
+        categories: &[Category],
+        picks: &[usize],
+        frames: usize,
+        context: usize,
+        seed: u64,
+    ) -> Result<WindowSet, EvalError> {
+        let model = &self.model.model;
+        let o = Rollout {
+            frames,
+            context,
+            seed,
+            ask: match ask {
+                Asking::One(_, a) => Some(a),
+                _ => None,
+            },
+        };
+        let Asking::Own(guidance) = ask else {
+            return Ok(generate::continue_windows(model, windows, picks, &o, &self.device)?);
+        };
+        let rows: Vec<Option<usize>> = picks
+            .iter()
+            .map(|&i| {
+                let c = categories.get(i).copied().unwrap_or(Category::Other);
+                model.config().categories.iter().position(|n| n == c.name()).map(|k| k + 1)
+            })
+            .collect();
+        let cond = model.config().condition(&rows, guidance, &self.device)?;
+        Ok(generate::continue_windows_with(
+            model,
+            windows,
+            picks,
+            &o,
+            cond,
             &self.device,
         )?)
     }

@@ -66,7 +66,13 @@ pub fn category_sheet(
         };
         let n = SHEET_MOTIONS_PER_ROW;
         for (k, x) in m
-            .sample_asked(Some((category, ask)), n, frames, spec.context, spec.seed)?
+            .sample_asked(
+                crate::run::Asking::One(category, ask),
+                n,
+                frames,
+                spec.context,
+                spec.seed,
+            )?
             .iter()
             .enumerate()
         {
@@ -154,7 +160,7 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
     });
     write_viewer(&out.join("viewer.html"), &sets)?;
     let category_sheet = match m.ask {
-        None if !m.model.model.config().categories.is_empty() => category_sheet(
+        crate::run::Asking::Nothing if !m.model.model.config().categories.is_empty() => category_sheet(
             &m,
             spec,
             o.frames,

@@ -144,12 +144,12 @@ pub fn continue_windows(
             .condition(&vec![Some(a.row); n], a.guidance, device)?,
         None => None,
     };
-    roll_out(model, windows, picks, o, cond, device)
+    continue_windows_with(model, windows, picks, o, cond, device)
 }
 
 /// [`continue_windows`] with the condition weights `cond` (one row per
-/// pick) instead of `o.ask`'s.
-fn roll_out(
+/// pick, [`crate::model::Config::condition`]) instead of `o.ask`'s.
+pub fn continue_windows_with(
     model: &dyn MotionModel,
     starts: &Windows,
     picks: &[usize],
@@ -318,7 +318,7 @@ impl<'a> Judge<'a> {
         let cond = model
             .config()
             .window_condition(&categories, |_| false, device)?;
-        let gen = roll_out(model, self.starts, &picks, &rollout, cond, device)?;
+        let gen = continue_windows_with(model, self.starts, &picks, &rollout, cond, device)?;
         // A stretch of every motion, re-based to its own start (its
         // features are local), measured and scored.
         let measure = |k: usize| {
