@@ -44,8 +44,9 @@ pub struct RunArgs {
     #[arg(long)]
     pub restart: Option<usize>,
     /// Generate this category (`walk`, `run`, …; a model trained with
-    /// `--condition category`), from training contexts of it; `own`: each
-    /// motion the category of the window it continues.
+    /// `--condition category`), from training contexts of it; `own` (a
+    /// conditioned model's default): each motion the category of the window
+    /// it continues; `none`: no category.
     #[arg(long)]
     pub category: Option<String>,
     /// Guidance scale of --category (1: as trained; 0: no category; above

@@ -88,8 +88,9 @@ pub struct TrainArgs {
     /// the first and the last; 1: one window).
     #[arg(long)]
     pub judge_stretches: Option<usize>,
-    /// `category`: condition the model on each window's category, so
-    /// `sample --category walk` can ask for one (`none`: unconditioned).
+    /// `category` (the `standard` preset's): condition the model on each
+    /// window's category, so `sample --category walk` can ask for one;
+    /// `none`: unconditioned (the `quick` and `paper` presets').
     #[arg(long)]
     pub condition: Option<ConditionOn>,
     /// Share of windows trained without their category (--condition category).
@@ -198,8 +199,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let n = |s: &str| data.splits.get(s).map_or(0, |w| w.n);
     if !a.quiet {
         eprintln!(
-            "training the {} model on {} train / {} val windows from {} on {:?}; batch {}, {} epochs, lr {}",
+            "training the {} model{} on {} train / {} val windows from {} on {:?}; batch {}, {} epochs, lr {}",
             a.model,
+            match cfg.condition {
+                Some(_) => " conditioned on the category (--condition none: without)",
+                None => "",
+            },
             n("train"),
             n("val"),
             a.data.display(),

@@ -699,7 +699,15 @@ fn a_conditioned_run_samples_the_category_asked_for() {
     );
     // An unconditioned run cannot be asked.
     let plain = tmp.path().join("plain");
-    train(&ds, &plain);
+    let ok = xtask()
+        .args(["train", "--quiet", "--batch", "8", "--epochs", "2"])
+        .args(["--condition", "none", "--data"])
+        .arg(&ds)
+        .arg("--out")
+        .arg(&plain)
+        .status()
+        .unwrap();
+    assert!(ok.success());
     let e = err(sample(&plain, &known[0], "bad"));
     assert!(e.contains("--condition category"), "{e}");
     // Without --category both sample as before; the conditioned run also
@@ -741,6 +749,24 @@ fn a_conditioned_run_samples_the_category_asked_for() {
     let asked = cont(&["--category", &known[0]], "asked.bvh");
     assert_ne!(asked, cont(&[], "free.bvh"));
     assert_eq!(asked, cont(&["--category", &known[0]], "again.bvh"));
+    // A clip has no category to take as its own.
+    let o = xtask()
+        .args(["continue", "--seconds", "1", "--category", "own", "--run"])
+        .arg(&run)
+        .arg("--input")
+        .arg(&clip)
+        .arg("--out")
+        .arg(tmp.path().join("own.bvh"))
+        .output()
+        .unwrap();
+    assert!(err(o).contains("a clip has none"));
+    // Without --category a conditioned run's motions ask for their
+    // contexts' own categories; `none` asks for none.
+    let parquet = |out: &str| std::fs::read(tmp.path().join(out).join("samples.parquet")).unwrap();
+    assert!(sample(&run, "own", "own").status.success());
+    assert!(sample(&run, "none", "none").status.success());
+    assert_eq!(parquet("own"), parquet("free"));
+    assert_ne!(parquet("none"), parquet("free"));
     let (_, h, _) = apng_frames(&tmp.path().join("free/category_sheet.png"));
     let (_, h1, _) = apng_frames(&tmp.path().join("free/contact_sheet.png"));
     assert!(

@@ -65,10 +65,10 @@ pub struct Asked {
     pub category: String,
     /// Its training windows.
     pub train_windows: usize,
-    /// Its test windows.
-    pub test_windows: usize,
-    /// Share of its real test windows the classifier recognises (None
-    /// without test windows).
+    /// Its windows in the evaluated split (`--split`, `test` by default).
+    pub split_windows: usize,
+    /// Share of its real windows of the evaluated split the classifier
+    /// recognises (None without such windows).
     pub real_accuracy: Option<f64>,
     /// Share of the motions asked for it recognised as it.
     pub accuracy: f64,
@@ -76,7 +76,7 @@ pub struct Asked {
     /// as it.
     pub accuracy_unasked: f64,
     /// Fréchet distance (classifier features) of the motions asked for it
-    /// to its real test windows (None below two test windows).
+    /// to its real windows of the evaluated split (None below two).
     pub frechet: Option<f64>,
     /// The same for its real training windows (the reference).
     pub frechet_reference: Option<f64>,
@@ -121,6 +121,9 @@ impl Asked {
 /// Every category asked for (`eval.json`'s `classifier.asked`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AskedSet {
+    /// The evaluated split (`--split`): the real reference of recognition
+    /// and of the Fréchet distances.
+    pub split: String,
     /// Guidance scale.
     pub guidance: f64,
     /// Motions per category.
@@ -128,8 +131,8 @@ pub struct AskedSet {
     /// Per category of the model.
     pub categories: Vec<Asked>,
     /// Fréchet distance (classifier features) of every motion asked for to
-    /// the real test windows.
-    pub frechet: f64,
+    /// the real windows of the evaluated split (None below two).
+    pub frechet: Option<f64>,
     /// Diversity of every motion asked for.
     pub diversity: Option<f64>,
     /// Multimodality by the category asked for.
@@ -213,7 +216,13 @@ pub fn ask_each(
             row: row + 1,
             guidance: spec.guidance,
         };
-        let gen = m.sample_asked(Asking::One(cat, ask), PER_CATEGORY, len, spec.context, spec.seed)?;
+        let gen = m.sample_asked(
+            Asking::One(cat, ask),
+            PER_CATEGORY,
+            len,
+            spec.context,
+            spec.seed,
+        )?;
         // The same contexts and noise, no category.
         let none = Ask {
             row: row + 1,
@@ -232,9 +241,9 @@ pub fn ask_each(
             let p = o.predicted();
             p.iter().filter(|&&x| x == cat).count() as f64 / p.len().max(1) as f64
         };
-        let test_f = seen.features("test", cat);
+        let test_f = seen.features(&spec.split, cat);
         let real_accuracy = seen
-            .of("test")
+            .of(&spec.split)
             .and_then(|(_, o, l)| classifier::accuracy(&o.predicted(), l).of(cat));
         let two = |v: &[Vec<f32>]| (v.len() >= 2).then_some(());
         let real = real_by
@@ -247,7 +256,7 @@ pub fn ask_each(
         out.push(Asked {
             category: cat.name().to_string(),
             train_windows: count("train", cat),
-            test_windows: count("test", cat),
+            split_windows: count(&spec.split, cat),
             real_accuracy,
             accuracy: share(&go),
             accuracy_unasked: share(&uo),
@@ -263,15 +272,18 @@ pub fn ask_each(
         all_feat.extend(go.features);
         all_gen.extend(gen);
     }
-    let test_all = seen.of("test").map_or(Vec::new(), |s| s.1.features.clone());
+    let test_all = seen
+        .of(&spec.split)
+        .map_or(Vec::new(), |s| s.1.features.clone());
     let gen_poses: Vec<Vec<Pose>> = all_gen.iter().map(global).collect();
     let summaries = |set: &[Vec<f32>]| generate::summaries(set, f);
     let test_s = summaries(&generate::windows_of(m.split(&spec.split)?));
     Ok(Some(AskedSet {
+        split: spec.split.clone(),
         guidance: spec.guidance,
         per_category: PER_CATEGORY,
         categories: out,
-        frechet: classifier::feature_frechet(&all_feat, &test_all),
+        frechet: (test_all.len() >= 2).then(|| classifier::feature_frechet(&all_feat, &test_all)),
         diversity: classifier::diversity(&all_feat, classifier::DIVERSITY_SAMPLES, spec.seed),
         multimodality: classifier::multimodality(
             &all_feat,
@@ -336,13 +348,16 @@ pub fn markdown(a: &AskedSet) -> String {
         "\n## Asked for each category (guidance {})\n\n\
          {} motions per category, each continuing a training window of it; beside them (\"unasked\") the \
          same contexts and noise with no category asked. Recognition: the share the classifier puts in the \
-         category asked for, against its share on the real test windows of it. Speed and contact: real \
+         category asked for, against its share on the real {split} windows of it. Speed and contact: real \
          windows of the category (all splits) → asked → unasked, with the ratio of draws of half the real \
          windows to all of them in brackets. Goals (categories with at least {} training windows): \
          recognised ≥ 0.9 × real, speed and contact 0.75–1.25 × real.\n\n\
-         | category | train / test windows | recognised: real test → asked (unasked) | hips speed m/s | contact | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
+         | category | train / {split} windows | recognised: real {split} → asked (unasked) | hips speed m/s | contact | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
          |---|---|---|---|---|---|---|---|---|\n",
-        a.guidance, a.per_category, MIN_TRAIN_WINDOWS
+        a.guidance,
+        a.per_category,
+        MIN_TRAIN_WINDOWS,
+        split = a.split
     );
     for c in &a.categories {
         let pct = |v: f64| format!("{:.0} %", 100.0 * v);
@@ -355,7 +370,7 @@ pub fn markdown(a: &AskedSet) -> String {
             "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
             c.category,
             c.train_windows,
-            c.test_windows,
+            c.split_windows,
             c.real_accuracy.map_or("n/a".into(), pct),
             pct(c.accuracy),
             pct(c.accuracy_unasked),
@@ -390,7 +405,7 @@ pub fn markdown(a: &AskedSet) -> String {
         g.root_speed_m_s / r.root_speed_m_s,
         a.frechet_summaries.0,
         a.frechet_summaries.1,
-        a.frechet,
+        opt(a.frechet),
         opt(a.diversity),
         opt(a.multimodality),
     );
@@ -426,6 +441,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
     let Some((_, first)) = runs.first() else {
         return String::new();
     };
+    let split = &first.split;
     let ms = |v: Vec<f64>, p: usize| {
         let (m, s) = crate::mean_std(&v);
         format!("{m:.p$} ± {s:.p$}")
@@ -439,9 +455,9 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
          classifier (`train-classifier`, seed 0) says what it got; \"unasked\" continues the same contexts with \
          the same noise and no category (what the contexts alone give). Speed and contact are generated ÷ the \
          real windows of the category (all splits), with the range of draws of half those real windows in \
-         brackets. Goals for categories with at least {} training windows: recognised ≥ 0.9 × the real test \
+         brackets. Goals for categories with at least {} training windows: recognised ≥ 0.9 × the real {split} \
          windows of the category, speed and contact 0.75–1.25×.\n\n\
-         | category | train / test windows | recognised, real test | recognised, asked | recognised, unasked | \
+         | category | train / {split} windows | recognised, real {split} | recognised, asked | recognised, unasked | \
          hips speed ÷ real | contact ÷ real | goals missed (mean) | seeds that miss |\n\
          |---|---|---|---|---|---|---|---|---|\n",
         runs.len(),
@@ -482,7 +498,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
             "| {} | {} / {} | {} | {} | {} | {} {} | {} {} | {} | {} |\n",
             c.category,
             c.train_windows,
-            c.test_windows,
+            c.split_windows,
             c.real_accuracy
                 .map_or("n/a".into(), |a| format!("{:.0} %", 100.0 * a)),
             pct(|a| a.accuracy),
@@ -503,7 +519,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
     s += &format!(
         "\nEvery motion asked for (all categories together) against every real window, mean ± std over the seeds \
          (the unconditioned goals of issue 11): jerk {}×, bone cv {} %, skating in contact {}×, hips height {}×, \
-         hips speed {}×, Fréchet (window summaries, to the test windows) {} against the train windows' {:.1}; \
+         hips speed {}×, Fréchet (window summaries, to the {split} windows) {} against the train windows' {:.1}; \
          feature Fréchet {}, diversity {}, multimodality (by the category asked) {}.\n\n\
          One row per category (seed 0, 4 motions each asked for it, 5 columns from the first frame to the last):\n\n\
          ![one row per category]({sheet})\n",
@@ -514,7 +530,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
         whole(|a| a.generated.root_speed_m_s / a.real.root_speed_m_s, 2),
         whole(|a| a.frechet_summaries.0, 1),
         first.frechet_summaries.1,
-        whole(|a| a.frechet, 0),
+        whole(|a| a.frechet.unwrap_or(f64::NAN), 0),
         whole(|a| a.diversity.unwrap_or(f64::NAN), 1),
         whole(|a| a.multimodality.unwrap_or(f64::NAN), 1),
     );
@@ -539,7 +555,7 @@ mod tests {
         Asked {
             category: "walk".into(),
             train_windows: 40,
-            test_windows: 5,
+            split_windows: 5,
             real_accuracy: Some(0.8),
             accuracy,
             accuracy_unasked: 0.1,
@@ -571,10 +587,11 @@ mod tests {
     #[test]
     fn the_page_averages_seeds_and_names_those_that_miss() {
         let set = |a: Asked| AskedSet {
+            split: "test".into(),
             guidance: 1.0,
             per_category: 64,
             categories: vec![a],
-            frechet: 1.0,
+            frechet: Some(1.0),
             diversity: Some(2.0),
             multimodality: Some(3.0),
             generated: MotionStats::default(),

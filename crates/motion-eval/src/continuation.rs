@@ -165,6 +165,8 @@ pub fn continue_clip(
                 ask: match run.ask {
                     Asking::Nothing => None,
                     Asking::One(_, a) => Some(a),
+                    // A clip has no category: none unless one is named.
+                    Asking::Own(_) if !run.asked_explicitly => None,
                     Asking::Own(_) => {
                         return Err(EvalError::Invalid(format!(
                             "--category {OWN} asks for the category of a training window; a clip has none: name one"

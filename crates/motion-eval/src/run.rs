@@ -33,7 +33,9 @@ pub struct RunSpec {
     pub restart: Option<usize>,
     /// The category to generate (a model trained with `--condition
     /// category`): generated motions are asked for it and continue
-    /// training windows of it.
+    /// training windows of it; [`OWN`]: each motion the category of the
+    /// window it continues (the default of a conditioned model); [`NONE`]:
+    /// no category.
     pub category: Option<String>,
     /// Guidance scale of the category ([`motion_vrnn::Config::condition`]).
     pub guidance: f64,
@@ -76,11 +78,17 @@ pub struct Run {
     pub warnings: Vec<String>,
     /// What generated motions are asked for ([`RunSpec::category`]).
     pub ask: Asking,
+    /// Whether `--category` was given (a clip continued by a conditioned
+    /// model asks for no category unless told one).
+    pub asked_explicitly: bool,
 }
 
 /// `--category own`: each motion asks for the category of the window it
-/// continues.
+/// continues (what a conditioned model's motions do unless told otherwise).
 pub const OWN: &str = "own";
+
+/// `--category none`: no category (row 0 of a conditioned model).
+pub const NONE: &str = "none";
 
 /// What a run's generated motions are asked for.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -122,7 +130,10 @@ impl Run {
         }
         let invalid = |e: String| EvalError::Invalid(format!("--category: {}: {e}", ck.display()));
         let ask = match spec.category.as_deref() {
-            None => Asking::Nothing,
+            // A conditioned model's motions ask for their contexts' categories
+            // unless told otherwise.
+            None if !meta.config.model.categories.is_empty() => Asking::Own(spec.guidance),
+            None | Some(NONE) => Asking::Nothing,
             Some(OWN) if meta.config.model.categories.is_empty() => {
                 return Err(invalid(format!(
                     "`{OWN}` asks each motion for its context's category, and this model was trained without categories; train one with `cargo xtask train --condition category`"
@@ -163,6 +174,7 @@ impl Run {
             device,
             warnings,
             ask,
+            asked_explicitly: spec.category.is_some(),
         })
     }
 
@@ -202,10 +214,13 @@ impl Run {
         context: usize,
         seed: u64,
     ) -> Result<WindowSet, EvalError> {
-        let (train, categories) = self.data.split("train").ok_or_else(|| EvalError::NoWindows {
-            dir: self.data.dir.clone(),
-            split: "train".into(),
-        })?;
+        let (train, categories) = self
+            .data
+            .split("train")
+            .ok_or_else(|| EvalError::NoWindows {
+                dir: self.data.dir.clone(),
+                split: "train".into(),
+            })?;
         let pool: Vec<usize> = match ask {
             Asking::One(c, _) => (0..train.n)
                 .filter(|&i| categories.get(i) == Some(&c))
@@ -250,13 +265,24 @@ impl Run {
             },
         };
         let Asking::Own(guidance) = ask else {
-            return Ok(generate::continue_windows(model, windows, picks, &o, &self.device)?);
+            return Ok(generate::continue_windows(
+                model,
+                windows,
+                picks,
+                &o,
+                &self.device,
+            )?);
         };
         let rows: Vec<Option<usize>> = picks
             .iter()
             .map(|&i| {
                 let c = categories.get(i).copied().unwrap_or(Category::Other);
-                model.config().categories.iter().position(|n| n == c.name()).map(|k| k + 1)
+                model
+                    .config()
+                    .categories
+                    .iter()
+                    .position(|n| n == c.name())
+                    .map(|k| k + 1)
             })
             .collect();
         let cond = model.config().condition(&rows, guidance, &self.device)?;

@@ -41,8 +41,8 @@ pub struct Written {
     pub round_trips: Vec<(&'static str, Vec<RoundTrip>)>,
     /// What the user should know.
     pub warnings: Vec<String>,
-    /// A conditioned model asked for nothing: the categories drawn in
-    /// `category_sheet.png` ([`category_sheet`]), one row each.
+    /// A conditioned model not asked for one category: the categories
+    /// drawn in `category_sheet.png` ([`category_sheet`]), one row each.
     pub category_sheet: Vec<String>,
 }
 
@@ -160,13 +160,17 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
     });
     write_viewer(&out.join("viewer.html"), &sets)?;
     let category_sheet = match m.ask {
-        crate::run::Asking::Nothing if !m.model.model.config().categories.is_empty() => category_sheet(
-            &m,
-            spec,
-            o.frames,
-            o.sheet_columns,
-            &out.join("category_sheet.png"),
-        )?,
+        crate::run::Asking::Nothing | crate::run::Asking::Own(_)
+            if !m.model.model.config().categories.is_empty() =>
+        {
+            category_sheet(
+                &m,
+                spec,
+                o.frames,
+                o.sheet_columns,
+                &out.join("category_sheet.png"),
+            )?
+        }
         _ => Vec::new(),
     };
     Ok(Written {

@@ -423,8 +423,14 @@ fn matmul(a: &[Vec<f64>], b: &[Vec<f64>]) -> Vec<Vec<f64>> {
 }
 
 /// Fréchet distance between Gaussians fitted to two sets of vectors:
-/// `‖μa − μb‖² + tr(Σa + Σb − 2 (Σa^½ Σb Σa^½)^½)`.
+/// `‖μa − μb‖² + tr(Σa + Σb − 2 (Σa^½ Σb Σa^½)^½)`. NaN when a set is
+/// empty or the two differ in dimension (no Gaussian to fit, nothing to
+/// compare).
 pub fn frechet(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let dim = |s: &[Vec<f64>]| s.first().map(Vec::len);
+    if a.is_empty() || b.is_empty() || dim(a) != dim(b) {
+        return f64::NAN;
+    }
     let (ma, ca) = mean_cov(a);
     let (mb, cb) = mean_cov(b);
     let d2: f64 = ma.iter().zip(&mb).map(|(x, y)| (x - y).powi(2)).sum();
@@ -521,6 +527,15 @@ pub fn goal_distance(real: &MotionStats, gen: &MotionStats, frechet: f64, freche
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn frechet_of_an_empty_set_is_nan_not_a_panic() {
+        let a = vec![vec![0.0, 1.0], vec![1.0, 0.0]];
+        assert!(frechet(&a, &[]).is_nan());
+        assert!(frechet(&[], &a).is_nan());
+        assert!(frechet(&a, &[vec![1.0]]).is_nan());
+        assert!(frechet(&a, &a).abs() < 1e-12);
+    }
+
     use super::*;
 
     fn still(x: f64) -> Vec<Pose> {

@@ -115,10 +115,11 @@ impl TrainConfig {
     }
 
     /// The default schedule (converges on the shared CMU samples in
-    /// minutes): the default model, batch 64, 400 epochs, KL warm-up over 20
-    /// epochs, clipping at 100, early stopping after 60 epochs without
-    /// improvement, `best` chosen by generated motion every 5 epochs, the
-    /// learning rate annealed to a tenth over the second half.
+    /// minutes): the default model conditioned on the category, batch 64,
+    /// 400 epochs, KL warm-up over 20 epochs, clipping at 100, early
+    /// stopping after 60 epochs without improvement, `best` chosen by
+    /// generated motion every 5 epochs, the learning rate annealed to a
+    /// tenth over the second half.
     pub fn standard() -> Self {
         TrainConfig {
             model: Config::named(crate::model::DEFAULT_MODEL).unwrap_or_default(),
@@ -129,6 +130,9 @@ impl TrainConfig {
             early_stopping: Some(60),
             select: Select::Generation { every: 5 },
             lr_final: Some(0.1),
+            condition: Some(Conditioning {
+                dropout: CONDITION_DROPOUT,
+            }),
             ..Self::paper()
         }
     }
