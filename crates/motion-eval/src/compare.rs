@@ -438,13 +438,17 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
     let mut s = String::from("# Results: every model, several seeds\n\n");
     let _ = writeln!(
         s,
-        "Written by `cargo xtask compare --data {} --page {}` ({} seeds per model, the `standard` schedule{}). \
+        "Written by `cargo xtask compare --data {} --page {}{}` ({} seeds per model, the `standard` schedule{}). \
          Each run is evaluated as `cargo xtask eval` does: its `best` checkpoint, the 51-odd real `test` windows, \
          one generated motion of 128 frames per test window (sampling seed 0, at the model's temperature, each continuing the first 16 frames of its window), \
          and the reconstructions of the test windows. Every value is the mean ± std over the seeds; \
          measures are defined in [metrics.md](metrics.md).\n",
         a.data.display(),
         a.page.display(),
+        a.classifier
+            .as_ref()
+            .map(|c| format!(" --classifier {}", c.display()))
+            .unwrap_or_default(),
         a.seeds,
         a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default()
     );
