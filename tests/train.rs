@@ -4,7 +4,8 @@
 use motion_vrnn::data::load;
 use motion_vrnn::generate::{sample_windows, Judge, Rollout};
 use motion_vrnn::train::{
-    layout, load_model, noise, read_meta, train, Quiet, Select, TrainConfig, TrainError,
+    layout, load_model, noise, read_meta, train, Conditioning, Quiet, Select, TrainConfig,
+    TrainError,
 };
 use motion_vrnn::MotionModel;
 use std::path::Path;
@@ -76,6 +77,18 @@ fn train_checkpoint_reload_gives_the_same_loss() {
         .err()
         .unwrap();
     assert!(err.to_string().contains("--resume"), "{err}");
+    // Resuming with other options names them.
+    let mut other = tiny_config();
+    other.condition = Some(Conditioning { dropout: 0.1 });
+    other.batch = 4;
+    let err = train(&data, &other, &run, true, &dev, &Quiet)
+        .err()
+        .unwrap();
+    let e = err.to_string();
+    assert!(
+        e.contains("batch: 8 → 4") && e.contains("condition: null →"),
+        "{e}"
+    );
 }
 
 #[test]

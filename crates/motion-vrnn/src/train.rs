@@ -684,8 +684,9 @@ pub fn train(
         };
         if meta.config != same_but_epochs {
             return Err(TrainError::Invalid(format!(
-                "{}: the checkpoint was trained with other options; resume with the same ones (only --epochs may change)",
-                last_dir.display()
+                "{}: the checkpoint was trained with other options ({}); resume with the same ones (only --epochs may change)",
+                last_dir.display(),
+                differing(&meta.config, &same_but_epochs).join(", ")
             )));
         }
         if meta.dataset_manifest_sha256 != data.manifest_sha256 {
@@ -874,6 +875,51 @@ pub fn train(
         history.push(m);
     }
     Ok(Outcome { model: t, history })
+}
+
+/// The options (JSON paths, `model.parts.self_feed`) whose values differ
+/// between two configurations, as `path: checkpoint → now`.
+fn differing(was: &TrainConfig, now: &TrainConfig) -> Vec<String> {
+    fn walk(path: &str, a: &serde_json::Value, b: &serde_json::Value, out: &mut Vec<String>) {
+        use serde_json::Value;
+        match (a, b) {
+            (Value::Object(x), Value::Object(y)) => {
+                let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
+                keys.sort();
+                keys.dedup();
+                for k in keys {
+                    let p = if path.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{path}.{k}")
+                    };
+                    walk(
+                        &p,
+                        x.get(k).unwrap_or(&Value::Null),
+                        y.get(k).unwrap_or(&Value::Null),
+                        out,
+                    );
+                }
+            }
+            _ if a != b => {
+                let short = |v: &Value| {
+                    let t = v.to_string();
+                    if t.len() > 40 {
+                        "…".to_string()
+                    } else {
+                        t
+                    }
+                };
+                out.push(format!("{path}: {} → {}", short(a), short(b)));
+            }
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    if let (Ok(a), Ok(b)) = (serde_json::to_value(was), serde_json::to_value(now)) {
+        walk("", &a, &b, &mut out);
+    }
+    out
 }
 
 /// What [`train`] returns.
