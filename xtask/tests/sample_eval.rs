@@ -5,7 +5,7 @@ mod common;
 use common::{six_takes, small_dataset, xtask};
 use std::path::Path;
 
-fn train(ds: &Path, run: &Path) {
+fn train(ds: &Path, run: &Path, extra: &[&str]) {
     let ok = xtask()
         .args([
             "train", "--quiet", "--batch", "8", "--epochs", "2", "--data",
@@ -13,6 +13,7 @@ fn train(ds: &Path, run: &Path) {
         .arg(ds)
         .arg("--out")
         .arg(run)
+        .args(extra)
         .status()
         .unwrap();
     assert!(ok.success());
@@ -24,7 +25,7 @@ fn trained_run() -> (tempfile::TempDir, std::path::PathBuf) {
     let ds = tmp.path().join("ds");
     small_dataset(&six_takes(tmp.path()), &ds);
     let run = tmp.path().join("run");
-    train(&ds, &run);
+    train(&ds, &run, &[]);
     (tmp, run)
 }
 
@@ -645,15 +646,7 @@ fn a_conditioned_run_samples_the_category_asked_for() {
     let ds = tmp.path().join("ds");
     small_dataset(&six_takes(tmp.path()), &ds);
     let run = tmp.path().join("cond");
-    let ok = xtask()
-        .args(["train", "--quiet", "--batch", "8", "--epochs", "2"])
-        .args(["--condition", "category", "--data"])
-        .arg(&ds)
-        .arg("--out")
-        .arg(&run)
-        .status()
-        .unwrap();
-    assert!(ok.success());
+    train(&ds, &run, &["--condition", "category"]);
     let meta: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("best/checkpoint.json")).unwrap())
             .unwrap();
@@ -699,15 +692,7 @@ fn a_conditioned_run_samples_the_category_asked_for() {
     );
     // An unconditioned run cannot be asked.
     let plain = tmp.path().join("plain");
-    let ok = xtask()
-        .args(["train", "--quiet", "--batch", "8", "--epochs", "2"])
-        .args(["--condition", "none", "--data"])
-        .arg(&ds)
-        .arg("--out")
-        .arg(&plain)
-        .status()
-        .unwrap();
-    assert!(ok.success());
+    train(&ds, &plain, &["--condition", "none"]);
     let e = err(sample(&plain, &known[0], "bad"));
     assert!(e.contains("--condition category"), "{e}");
     // Without --category both sample as before; the conditioned run also

@@ -212,29 +212,17 @@ pub fn ask_each(
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for (row, name) in config.categories.iter().enumerate() {
         let cat: Category = name.parse().map_err(EvalError::Invalid)?;
-        let ask = Ask {
-            row: row + 1,
-            guidance: spec.guidance,
+        // Contexts of the category, asked for it at `guidance` (0: none).
+        let asked = |guidance: f64| {
+            let ask = Ask {
+                row: row + 1,
+                guidance,
+            };
+            let n = PER_CATEGORY;
+            m.sample_asked(Asking::One(cat, ask), n, len, spec.context, spec.seed)
         };
-        let gen = m.sample_asked(
-            Asking::One(cat, ask),
-            PER_CATEGORY,
-            len,
-            spec.context,
-            spec.seed,
-        )?;
-        // The same contexts and noise, no category.
-        let none = Ask {
-            row: row + 1,
-            guidance: 0.0,
-        };
-        let unasked = m.sample_asked(
-            Asking::One(cat, none),
-            PER_CATEGORY,
-            len,
-            spec.context,
-            spec.seed,
-        )?;
+        // The same contexts and noise, with the category and without.
+        let (gen, unasked) = (asked(spec.guidance)?, asked(0.0)?);
         let seen_by = |set: &[Vec<f32>]| c.outputs(&as_windows(set, len, f), &m.device);
         let (go, uo) = (seen_by(&gen)?, seen_by(&unasked)?);
         let share = |o: &Outputs| {
