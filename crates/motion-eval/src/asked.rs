@@ -148,20 +148,49 @@ pub struct AskedSet {
     pub frechet_summaries: (f64, f64),
 }
 
-/// What the classifier made of the real windows, per split.
+/// Every real window of the run's splits (in [`crate::horizon::SPLITS`]
+/// order) in global positions with its label, and what the classifier made
+/// of each split: computed once, read by [`crate::recognition`] and
+/// [`ask_each`].
 pub struct RealSeen<'a> {
     /// `(split, outputs, labels)`.
-    pub splits: Vec<(&'a str, &'a Outputs, &'a [Category])>,
+    pub splits: Vec<(&'static str, Outputs, &'a [Category])>,
+    /// Every real window, in global positions.
+    pub poses: Vec<Vec<Pose>>,
+    /// The label of each.
+    pub labels: Vec<Category>,
+}
+
+impl<'a> RealSeen<'a> {
+    /// The real windows of `m` seen by the classifier `c`.
+    pub fn of(m: &'a Run, c: &Classifier) -> Result<Self, EvalError> {
+        let mut seen = RealSeen {
+            splits: Vec::new(),
+            poses: Vec::new(),
+            labels: Vec::new(),
+        };
+        for split in crate::horizon::SPLITS {
+            if let Some((w, labels)) = m.data.split(split) {
+                seen.splits.push((split, c.outputs(w, &m.device)?, labels));
+                let windows = generate::windows_of(w);
+                seen.poses
+                    .extend(windows.iter().map(|x| to_poses(x, &m.data.stats)));
+                seen.labels.extend_from_slice(labels);
+            }
+        }
+        Ok(seen)
+    }
 }
 
 impl RealSeen<'_> {
-    fn of(&self, split: &str) -> Option<&(&str, &Outputs, &[Category])> {
+    /// The classifier's outputs of `split`, with its labels.
+    pub fn split(&self, split: &str) -> Option<&(&'static str, Outputs, &[Category])> {
         self.splits.iter().find(|s| s.0 == split)
     }
 
     /// The features of `split`'s windows labelled `c`.
     fn features(&self, split: &str, c: Category) -> Vec<Vec<f32>> {
-        self.of(split).map_or(Vec::new(), |(_, o, l)| {
+        self.split(split).map_or(Vec::new(), |(_, o, l)| {
             o.features
                 .iter()
                 .zip(l.iter())
@@ -188,20 +217,14 @@ pub fn ask_each(
     let (len, f) = (train.length, train.features);
     let opts = Options::default();
     let global = |x: &Vec<f32>| to_poses(x, &m.data.stats);
-    let mut real_by: Vec<(Category, Vec<Vec<Pose>>)> = Vec::new();
-    let mut all_real: Vec<Vec<Pose>> = Vec::new();
-    for split in crate::horizon::SPLITS {
-        if let Some((w, labels)) = m.data.split(split) {
-            for (x, l) in generate::windows_of(w).iter().zip(labels) {
-                let p = global(x);
-                match real_by.iter_mut().find(|r| r.0 == *l) {
-                    Some(r) => r.1.push(p.clone()),
-                    None => real_by.push((*l, vec![p.clone()])),
-                }
-                all_real.push(p);
-            }
-        }
-    }
+    let real_of = |c: Category| -> Vec<Vec<Pose>> {
+        seen.poses
+            .iter()
+            .zip(&seen.labels)
+            .filter(|(_, &l)| l == c)
+            .map(|(p, _)| p.clone())
+            .collect()
+    };
     let count = |split: &str, c: Category| {
         m.data
             .categories
@@ -231,13 +254,10 @@ pub fn ask_each(
         };
         let test_f = seen.features(&spec.split, cat);
         let real_accuracy = seen
-            .of(&spec.split)
+            .split(&spec.split)
             .and_then(|(_, o, l)| classifier::accuracy(&o.predicted(), l).of(cat));
         let two = |v: &[Vec<f32>]| (v.len() >= 2).then_some(());
-        let real = real_by
-            .iter()
-            .find(|r| r.0 == cat)
-            .map_or(&[][..], |r| r.1.as_slice());
+        let real = real_of(cat);
         let gen_poses: Vec<Vec<Pose>> = gen.iter().map(global).collect();
         let un_poses: Vec<Vec<Pose>> = unasked.iter().map(global).collect();
         let missing = || EvalError::Invalid(format!("no windows of {cat}"));
@@ -251,17 +271,17 @@ pub fn ask_each(
             frechet: two(&test_f).map(|_| classifier::feature_frechet(&go.features, &test_f)),
             frechet_reference: two(&test_f)
                 .map(|_| classifier::feature_frechet(&seen.features("train", cat), &test_f)),
-            real: plain(real).ok_or_else(missing)?,
+            real: plain(&real).ok_or_else(missing)?,
             generated: plain(&gen_poses).ok_or_else(missing)?,
             unasked: plain(&un_poses).ok_or_else(missing)?,
-            real_spread: spread(real, spec.seed),
+            real_spread: spread(&real, spec.seed),
         });
         all_labels.extend(std::iter::repeat_n(cat, gen.len()));
         all_feat.extend(go.features);
         all_gen.extend(gen);
     }
     let test_all = seen
-        .of(&spec.split)
+        .split(&spec.split)
         .map_or(Vec::new(), |s| s.1.features.clone());
     let gen_poses: Vec<Vec<Pose>> = all_gen.iter().map(global).collect();
     let summaries = |set: &[Vec<f32>]| generate::summaries(set, f);
@@ -280,7 +300,7 @@ pub fn ask_each(
             spec.seed,
         ),
         generated: motion_stats(&gen_poses, &opts),
-        real: motion_stats(&all_real, &opts),
+        real: motion_stats(&seen.poses, &opts),
         frechet_summaries: (
             motion_metrics::frechet(&test_s, &summaries(&all_gen)),
             motion_metrics::frechet(&test_s, &summaries(&generate::windows_of(train))),
@@ -405,15 +425,7 @@ pub fn markdown(a: &AskedSet) -> String {
 pub fn evaluate(spec: &RunSpec, dir: &std::path::Path) -> Result<AskedSet, EvalError> {
     let m = Run::load(spec, &crate::horizon::SPLITS)?;
     let (c, _) = Classifier::load(dir, &m.device)?;
-    let mut outputs = Vec::new();
-    for split in crate::horizon::SPLITS {
-        if let Some((w, labels)) = m.data.split(split) {
-            outputs.push((split, c.outputs(w, &m.device)?, labels));
-        }
-    }
-    let seen = RealSeen {
-        splits: outputs.iter().map(|(s, o, l)| (*s, o, *l)).collect(),
-    };
+    let seen = RealSeen::of(&m, &c)?;
     ask_each(&m, spec, &c, &seen)?.ok_or_else(|| {
         EvalError::Invalid(format!(
             "{}: the model was trained without categories (train it with --condition category)",

@@ -69,40 +69,27 @@ pub struct Recognition {
 /// Measure the loaded run `m` (all splits) with the classifier in `dir`.
 pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, EvalError> {
     let (c, _) = Classifier::load(dir, &m.device)?;
-    let (train, _) = m.data.split("train").ok_or_else(|| EvalError::NoWindows {
-        dir: m.data.dir.clone(),
-        split: "train".into(),
-    })?;
+    let train = m.split("train")?;
     let (len, f) = (train.length, train.features);
     let generated = m.sample(MOTIONS, len, spec.context, spec.seed)?;
     let gen = c.outputs(&as_windows(&generated, len, f), &m.device)?;
     let global = |x: &Vec<f32>| to_poses(x, &m.data.stats);
     let gen_poses: Vec<Vec<Pose>> = generated.iter().map(global).collect();
-    let mut real_poses: Vec<Vec<Pose>> = Vec::new();
-    let (mut real_f, mut labels, mut recognised) = (Vec::new(), Vec::new(), Vec::new());
-    // Each split's classifier outputs, once.
-    let mut per_split = Vec::new();
-    for split in crate::horizon::SPLITS {
-        if let Some((w, l)) = m.data.split(split) {
-            let o = c.outputs(w, &m.device)?;
-            recognised.extend(o.predicted());
-            labels.extend_from_slice(l);
-            real_f.extend(o.features.iter().cloned());
-            real_poses.extend(motion_vrnn::generate::windows_of(w).iter().map(global));
-            per_split.push((split, o, l));
-        }
+    // The real windows through the classifier, once.
+    let seen = crate::asked::RealSeen::of(m, &c)?;
+    let (real_poses, labels) = (&seen.poses, &seen.labels);
+    let (mut real_f, mut recognised) = (Vec::new(), Vec::new());
+    for (_, o, _) in &seen.splits {
+        recognised.extend(o.predicted());
+        real_f.extend(o.features.iter().cloned());
     }
-    let of = |name: &str| per_split.iter().find(|s| s.0 == name);
-    let train_f = of("train").map_or(&real_f, |s| &s.1.features);
-    let (test_f, test_accuracy) = match of("test") {
+    let train_f = seen.split("train").map_or(&real_f, |s| &s.1.features);
+    let (test_f, test_accuracy) = match seen.split("test") {
         Some((_, o, l)) => (
             &o.features,
             classifier::accuracy(&o.predicted(), l).overall(),
         ),
         None => (train_f, None),
-    };
-    let seen = crate::asked::RealSeen {
-        splits: per_split.iter().map(|(s, o, l)| (*s, o, *l)).collect(),
     };
     let asked = crate::asked::ask_each(m, spec, &c, &seen)?;
     let predicted = gen.predicted();
@@ -130,7 +117,7 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
         frechet_train: classifier::feature_frechet(train_f, test_f),
         diversity_real: classifier::diversity(&real_f, sd, spec.seed),
         diversity_generated: classifier::diversity(&gen.features, sd, spec.seed),
-        multimodality_real: classifier::multimodality(&real_f, &labels, sl, spec.seed),
+        multimodality_real: classifier::multimodality(&real_f, labels, sl, spec.seed),
         multimodality_generated: classifier::multimodality(
             &gen.features,
             &predicted,
@@ -141,10 +128,10 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
             .iter()
             .map(|&c| Share {
                 category: c.name().to_string(),
-                real: share(&labels, c),
+                real: share(labels, c),
                 real_recognised: share(&recognised, c),
                 generated: share(&predicted, c),
-                real_measures: group(&real_poses, &labels, c),
+                real_measures: group(real_poses, labels, c),
                 generated_measures: group(&gen_poses, &predicted, c),
             })
             .collect(),

@@ -131,12 +131,7 @@ pub fn report(
         false => vec!["train", a.split.as_str()],
     };
     let m = Run::load(a, &splits)?;
-    let w = m.split(&a.split)?;
-    let categories = m
-        .data
-        .categories
-        .get(&a.split)
-        .map_or(&[][..], Vec::as_slice);
+    let (w, categories) = m.labelled(&a.split)?;
     let (recon, kl) = evaluate(&m.model.model, w, categories, 256, a.seed, &m.device)?;
     let t = w.length as f64;
     let idx: Vec<usize> = (0..w.n).collect();

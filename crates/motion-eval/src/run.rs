@@ -180,14 +180,16 @@ impl Run {
 
     /// The windows of split `name`, or an error when it has none.
     pub fn split(&self, name: &str) -> Result<&Windows, EvalError> {
-        self.data
-            .splits
-            .get(name)
-            .filter(|w| w.n > 0)
-            .ok_or_else(|| EvalError::NoWindows {
-                dir: self.data.dir.clone(),
-                split: name.to_string(),
-            })
+        self.labelled(name).map(|s| s.0)
+    }
+
+    /// The windows of split `name` with their categories, or an error when
+    /// it has none.
+    pub fn labelled(&self, name: &str) -> Result<(&Windows, &[Category]), EvalError> {
+        self.data.split(name).ok_or_else(|| EvalError::NoWindows {
+            dir: self.data.dir.clone(),
+            split: name.to_string(),
+        })
     }
 
     /// `n` motions of `frames` frames sampled from the prior, each
@@ -214,13 +216,7 @@ impl Run {
         context: usize,
         seed: u64,
     ) -> Result<WindowSet, EvalError> {
-        let (train, categories) = self
-            .data
-            .split("train")
-            .ok_or_else(|| EvalError::NoWindows {
-                dir: self.data.dir.clone(),
-                split: "train".into(),
-            })?;
+        let (train, categories) = self.labelled("train")?;
         let pool: Vec<usize> = match ask {
             Asking::One(c, _) => (0..train.n)
                 .filter(|&i| categories.get(i) == Some(&c))
@@ -273,19 +269,13 @@ impl Run {
                 &self.device,
             )?);
         };
-        let rows: Vec<Option<usize>> = picks
-            .iter()
-            .map(|&i| {
-                let c = categories.get(i).copied().unwrap_or(Category::Other);
-                model
-                    .config()
-                    .categories
-                    .iter()
-                    .position(|n| n == c.name())
-                    .map(|k| k + 1)
-            })
-            .collect();
-        let cond = model.config().condition(&rows, guidance, &self.device)?;
+        let cond = model.config().window_condition(
+            categories,
+            picks,
+            guidance,
+            |_| false,
+            &self.device,
+        )?;
         Ok(generate::continue_windows_with(
             model,
             windows,
@@ -303,26 +293,19 @@ impl Run {
         split: &str,
         idx: &[usize],
     ) -> Result<(WindowSet, WindowSet), EvalError> {
-        let w = self.split(split)?;
-        let categories = self
-            .data
-            .categories
-            .get(split)
-            .map_or(&[][..], Vec::as_slice);
+        let (w, categories) = self.labelled(split)?;
         let per = w.length * w.features;
         let mut real = Vec::new();
         let mut rec = Vec::new();
         for chunk in idx.chunks(256) {
             let x = w.batch(chunk, &self.device)?;
-            let cats: Vec<Category> = chunk
-                .iter()
-                .map(|&i| categories.get(i).copied().unwrap_or(Category::Other))
-                .collect();
-            let cond =
-                self.model
-                    .model
-                    .config()
-                    .window_condition(&cats, |_| false, &self.device)?;
+            let cond = self.model.model.config().window_condition(
+                categories,
+                chunk,
+                1.0,
+                |_| false,
+                &self.device,
+            )?;
             let r = self.model.model.reconstruct(&x, cond.as_ref())?;
             for (set, t) in [(&mut real, &x), (&mut rec, &r)] {
                 set.extend(

@@ -308,16 +308,10 @@ impl<'a> Judge<'a> {
         };
         // A conditioned model is asked for each context's own category.
         let picks = picks(rollout.seed, n, self.starts.n);
-        let categories: Vec<crate::data::Category> = picks
-            .iter()
-            .map(|&i| {
-                let c = self.categories.get(i).copied();
-                c.unwrap_or(crate::data::Category::Other)
-            })
-            .collect();
-        let cond = model
-            .config()
-            .window_condition(&categories, |_| false, device)?;
+        let cond =
+            model
+                .config()
+                .window_condition(self.categories, &picks, 1.0, |_| false, device)?;
         let gen = continue_windows_with(model, self.starts, &picks, &rollout, cond, device)?;
         // A stretch of every motion, re-based to its own start (its
         // features are local), measured and scored.

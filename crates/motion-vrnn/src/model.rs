@@ -34,6 +34,7 @@ use crate::blocks::{
 };
 use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::VarBuilder;
+use mocap_ingest::category::Category;
 use serde::{Deserialize, Serialize};
 
 pub use crate::blocks::SIGMA_MIN;
@@ -291,27 +292,41 @@ impl Config {
         Tensor::from_vec(w, (asked.len(), n), device).map(Some)
     }
 
-    /// Condition weights for windows of `categories` ([`Config::condition`],
-    /// guidance 1), each dropped to "no category" where `dropped(i)`; None
-    /// for an unconditioned model.
+    /// Condition weights for the windows `windows` of a split whose
+    /// windows have the categories `categories` (`other` past its end, as
+    /// for a dataset without categories), each asking for its own category
+    /// at `guidance` ([`Config::condition`]), or for none where
+    /// `dropped(k)` (`k`: the position in `windows`) or where the model has
+    /// no row for it; None for an unconditioned model.
     pub fn window_condition(
         &self,
-        categories: &[mocap_ingest::category::Category],
+        categories: &[Category],
+        windows: &[usize],
+        guidance: f64,
         dropped: impl Fn(usize) -> bool,
         device: &Device,
     ) -> Result<Option<Tensor>> {
         if self.categories.is_empty() {
             return Ok(None);
         }
-        let rows: Vec<Option<usize>> = categories
+        let rows: Vec<Option<usize>> = windows
             .iter()
             .enumerate()
-            .map(|(i, c)| {
-                let row = self.categories.iter().position(|n| n == c.name());
-                row.filter(|_| !dropped(i)).map(|k| k + 1)
+            .map(|(k, &i)| {
+                let c = categories.get(i).copied().unwrap_or(Category::Other);
+                self.row_of(c).filter(|_| !dropped(k))
             })
             .collect();
-        self.condition(&rows, 1.0, device)
+        self.condition(&rows, guidance, device)
+    }
+
+    /// The condition-table row of `category` (counted from 1), if the
+    /// model has one.
+    fn row_of(&self, category: Category) -> Option<usize> {
+        self.categories
+            .iter()
+            .position(|c| c == category.name())
+            .map(|k| k + 1)
     }
 
     /// The row of the condition table asked for by the category `name`
@@ -319,17 +334,13 @@ impl Config {
     /// can be asked: an unknown name lists the known ones, a known one the
     /// model was not trained with lists the model's.
     pub fn category_row(&self, name: &str) -> std::result::Result<usize, String> {
-        let category: mocap_ingest::category::Category = name.parse()?;
+        let category: Category = name.parse()?;
         if self.categories.is_empty() {
             return Err(format!(
                 "this model was trained without categories, so it cannot be asked for {category}; train one with `cargo xtask train --condition category`"
             ));
         }
-        self.categories
-            .iter()
-            .position(|c| c == category.name())
-            .map(|k| k + 1)
-            .ok_or_else(|| {
+        self.row_of(category).ok_or_else(|| {
                 format!(
                     "the model was not trained with {category} (its training set had no {category} windows); it knows: {}",
                     self.categories.join(", ")

@@ -480,8 +480,9 @@ pub fn evaluate(
             model.config().latent,
             device,
         )?;
-        let cats: Vec<Category> = chunk.iter().map(|&i| category(categories, i)).collect();
-        let cond = model.config().window_condition(&cats, |_| false, device)?;
+        let cond = model
+            .config()
+            .window_condition(categories, chunk, 1.0, |_| false, device)?;
         let (r, k) = sharded(model, &x, &eps, None, cond.as_ref(), None)?.0;
         let w = chunk.len() as f64;
         recon += r as f64 * w;
@@ -489,12 +490,6 @@ pub fn evaluate(
     }
     let n = windows.n.max(1) as f64;
     Ok((recon / n, kl / n))
-}
-
-/// The category of window `i` (`other` past the end of `categories`, as
-/// for a dataset without categories).
-fn category(categories: &[Category], i: usize) -> Category {
-    categories.get(i).copied().unwrap_or(Category::Other)
 }
 
 /// Files of a run directory.
@@ -760,11 +755,8 @@ pub fn train(
                 Some(c) => {
                     let mut rng = Rng::new(config.seed ^ 0xC0DE_0000_0000, step);
                     let drop: Vec<bool> = chunk.iter().map(|_| rng.uniform() < c.dropout).collect();
-                    let cats: Vec<Category> = chunk
-                        .iter()
-                        .map(|&i| category(train_categories, i))
-                        .collect();
-                    config.model.window_condition(&cats, |i| drop[i], device)?
+                    let model = &config.model;
+                    model.window_condition(train_categories, chunk, 1.0, |k| drop[k], device)?
                 }
                 None => None,
             };
