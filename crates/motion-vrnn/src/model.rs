@@ -623,7 +623,13 @@ impl Vrnn {
             return Ok(None);
         };
         let e = match cond {
-            Some(w) => w.matmul(table)?,
+            // The fused product: its backward sums over the rows in
+            // blocks that do not depend on the CPU (`blocks::kernels::mm`),
+            // where candle's `matmul` leaves that to the cache size.
+            Some(w) => {
+                let none = Tensor::zeros(table.dim(1)?, DType::F32, table.device())?;
+                linear(w, &table.t()?, &none, Act::None)?
+            }
             None => table.narrow(0, 0, 1)?,
         };
         let (pre, prior) = (2 * c.latent + 4 * c.hidden, 2 * c.latent);

@@ -23,7 +23,27 @@ pub(crate) fn tr(off: usize, rs: usize) -> V {
     V { off, rs: 1, cs: rs }
 }
 
-/// `c (+)= a · b` with `a: m×k`, `b: k×n`, `c: m×n`; single-threaded.
+/// Longest run of the inner dimension one `gemm` call sums. `gemm` cuts a
+/// longer one into blocks whose length it derives from the CPU's L1 cache
+/// (512 on a 32 KiB 8-way L1, 1,024 on a 48 KiB 12-way one), and the block
+/// length decides the order of the sum: the same product came out different
+/// in its last bits on different CPUs, and training diverged from there. So
+/// [`mm`] cuts the inner dimension itself, exactly as `gemm` does with
+/// 512-long blocks (equal blocks of at most this length, summed in order),
+/// and every call `gemm` sees is a single block whatever the cache.
+pub(crate) const K_BLOCK: usize = 512;
+
+/// The lengths [`mm`] cuts an inner dimension of `k` into.
+pub(crate) fn k_blocks(k: usize) -> impl Iterator<Item = (usize, usize)> {
+    let pieces = k.div_ceil(K_BLOCK).max(1);
+    let len = k.div_ceil(pieces);
+    (0..k)
+        .step_by(len.max(1))
+        .map(move |start| (start, len.min(k - start)))
+}
+
+/// `c (+)= a · b` with `a: m×k`, `b: k×n`, `c: m×n`; single-threaded; the
+/// same bits on every CPU that runs `gemm`'s same kernel ([`K_BLOCK`]).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn mm(
     (m, n, k): (usize, usize, usize),
@@ -52,30 +72,33 @@ pub(crate) fn mm(
     assert!(end(cv, m, n) <= c.len(), "gemm: destination out of bounds");
     assert!(end(av, m, k) <= a.len(), "gemm: lhs out of bounds");
     assert!(end(bv, k, n) <= b.len(), "gemm: rhs out of bounds");
-    // SAFETY: the asserts above keep every access inside the slices; `c` is
-    // borrowed mutably, so it cannot alias `a` or `b`.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            c.as_mut_ptr().add(cv.off),
-            cv.cs as isize,
-            cv.rs as isize,
-            acc,
-            a.as_ptr().add(av.off),
-            av.cs as isize,
-            av.rs as isize,
-            b.as_ptr().add(bv.off),
-            bv.cs as isize,
-            bv.rs as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        )
+    for (i, (start, len)) in k_blocks(k).enumerate() {
+        // SAFETY: the asserts above keep every access inside the slices
+        // (the block's columns of `a` and rows of `b` lie within `k`); `c`
+        // is borrowed mutably, so it cannot alias `a` or `b`.
+        unsafe {
+            gemm::gemm(
+                m,
+                n,
+                len,
+                c.as_mut_ptr().add(cv.off),
+                cv.cs as isize,
+                cv.rs as isize,
+                acc || i > 0,
+                a.as_ptr().add(av.off + start * av.cs),
+                av.cs as isize,
+                av.rs as isize,
+                b.as_ptr().add(bv.off + start * bv.rs),
+                bv.cs as isize,
+                bv.rs as isize,
+                1.0,
+                1.0,
+                false,
+                false,
+                false,
+                gemm::Parallelism::None,
+            )
+        }
     }
 }
 
@@ -137,5 +160,64 @@ pub(crate) fn dsigma(s: f32) -> f32 {
         s * (1.0 - s)
     } else {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The inner dimension is cut as `gemm` cuts it with 512-long blocks:
+    /// equal pieces of at most 512, in order, covering it once.
+    #[test]
+    fn inner_blocks_are_gemms_512_blocks() {
+        let cut = |k: usize| k_blocks(k).collect::<Vec<_>>();
+        assert_eq!(cut(100), [(0, 100)]);
+        assert_eq!(cut(512), [(0, 512)]);
+        assert_eq!(cut(513), [(0, 257), (257, 256)]);
+        assert_eq!(cut(1000), [(0, 500), (500, 500)]);
+        assert_eq!(
+            cut(4096),
+            (0..8).map(|i| (512 * i, 512)).collect::<Vec<_>>()
+        );
+        assert_eq!(cut(1), [(0, 1)]);
+    }
+
+    /// A product longer than one block, strided and accumulated, against a
+    /// sum in f64.
+    #[test]
+    fn a_long_product_is_the_product() {
+        let (m, n, k) = (3, 5, 1300);
+        let a: Vec<f32> = (0..m * k)
+            .map(|i| ((i * 7 % 13) as f32 - 6.0) / 7.0)
+            .collect();
+        let b: Vec<f32> = (0..k * n)
+            .map(|i| ((i * 5 % 11) as f32 - 5.0) / 3.0)
+            .collect();
+        // c = 1 + a · bᵀᵀ with b stored transposed (n × k, row-major).
+        let mut c = vec![1.0f32; m * n];
+        mm(
+            (m, n, k),
+            &mut c,
+            rm(0, n),
+            true,
+            &a,
+            rm(0, k),
+            &b,
+            tr(0, k),
+        );
+        for r in 0..m {
+            for q in 0..n {
+                let want: f64 = 1.0
+                    + (0..k)
+                        .map(|i| a[r * k + i] as f64 * b[q * k + i] as f64)
+                        .sum::<f64>();
+                let got = c[r * n + q] as f64;
+                assert!(
+                    (got - want).abs() < 1e-3 * want.abs().max(1.0),
+                    "{got} vs {want}"
+                );
+            }
+        }
     }
 }
