@@ -39,6 +39,10 @@ pub struct RunArgs {
     /// model's own (`docs/training.md`; 1: the prior as trained).
     #[arg(long)]
     pub temperature: Option<f64>,
+    /// Foot-lock sharpness when generating (contact logits times this),
+    /// instead of the model's own (`docs/training.md`; 1: as trained).
+    #[arg(long)]
+    pub contact_sharpness: Option<f64>,
     /// Generate in runs of this many frames, each restarting the model on
     /// the last --context frames made, instead of the model's own (0: one run).
     #[arg(long)]
@@ -164,6 +168,7 @@ impl RunArgs {
             split: self.split.clone(),
             context: self.context,
             temperature: self.temperature,
+            contact_sharpness: self.contact_sharpness,
             restart: self.restart,
             category: self.category.clone(),
             guidance: self.guidance,

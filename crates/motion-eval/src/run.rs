@@ -28,6 +28,9 @@ pub struct RunSpec {
     pub context: usize,
     /// Sampling temperature instead of the model's own.
     pub temperature: Option<f64>,
+    /// Foot-lock sharpness instead of the model's own
+    /// (`Parts::contact_sharpness`).
+    pub contact_sharpness: Option<f64>,
     /// Frames per run of the recurrence instead of the model's own
     /// (`Some(0)`: one run; see `Parts::restart`).
     pub restart: Option<usize>,
@@ -53,6 +56,7 @@ impl RunSpec {
             split: "test".into(),
             context: generate::CONTEXT,
             temperature: None,
+            contact_sharpness: None,
             restart: None,
             category: None,
             guidance: 1.0,
@@ -118,6 +122,12 @@ impl Run {
                 .model
                 .set_temperature(Some(t))
                 .map_err(|e| EvalError::Invalid(format!("--temperature: {e}")))?;
+        }
+        if let Some(k) = spec.contact_sharpness {
+            model
+                .model
+                .set_contact_sharpness(Some(k))
+                .map_err(|e| EvalError::Invalid(format!("--contact-sharpness: {e}")))?;
         }
         if let Some(r) = spec.restart {
             model.model.set_restart(Some(r));

@@ -134,6 +134,13 @@ pub struct Parts {
     /// the ELBO do not use it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub restart: Option<usize>,
+    /// Sharpness of the foot lock when generating: the contact logits are
+    /// multiplied by it before the lock weighs the toes (None: 1, as
+    /// trained). Above 1 a toe the model thinks is probably down counts
+    /// more, and one probably in the air less, so a swinging foot no
+    /// longer pulls the root back. Training and the ELBO do not use it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_sharpness: Option<f64>,
 }
 
 impl Parts {
@@ -809,6 +816,14 @@ impl Vrnn {
         Ok(())
     }
 
+    /// Generate with the foot lock's contact logits times `k`
+    /// ([`Parts::contact_sharpness`]; None: 1) instead of the model's own.
+    pub fn set_contact_sharpness(&mut self, k: Option<f64>) -> Result<()> {
+        positive("contact sharpness", k)?;
+        self.config.parts.contact_sharpness = k;
+        Ok(())
+    }
+
     /// Each window's bone lengths (mean over its frames) for every row:
     /// `[B, T, 18]`, or `None` without the skeleton part.
     fn window_bones(&self, x: &Tensor) -> Result<Option<Tensor>> {
@@ -1063,6 +1078,10 @@ impl MotionModel for Vrnn {
                     if let (Some(prev), Some(l), Some(body)) =
                         (frames.last(), self.contact_logits(&o)?, &self.config.body)
                     {
+                        let l = match c.parts.contact_sharpness {
+                            Some(k) => (l * k)?,
+                            None => l,
+                        };
                         let one = |t: &Tensor| t.unsqueeze(1);
                         let g = ground(&one(&x)?, &one(&l)?, &body.stats())?;
                         x = lock(&one(prev)?, &g, &one(&l)?, &body.stats())?.squeeze(1)?;

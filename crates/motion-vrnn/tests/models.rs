@@ -320,6 +320,46 @@ fn the_temperature_scales_the_prior_noise_only() {
     }
 }
 
+/// The foot lock's sharpness changes generated frames only, and only in a
+/// model with the foot lock: 1 is the model as trained, bit for bit; 4
+/// moves the generated root; the losses ignore it; it must be positive.
+#[test]
+fn contact_sharpness_changes_the_generated_foot_lock_only() {
+    for (name, locks) in [("paper", false), ("motion", true)] {
+        let mut m = model(name, 6);
+        let (x, _) = batch(3, 9, 17);
+        let start = x.narrow(1, 0, 3).unwrap();
+        let e = noise(4, 0, 9, 3, 8, &Device::Cpu).unwrap();
+        let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let (x8, eps) = batch(2, 6, 3);
+        let loss = |m: &Trained| flat(m.model.losses(&x8, &eps, None, None).unwrap().recon);
+        let plain = flat(m.model.sample(&e, Some(&start), None).unwrap());
+        let l1 = loss(&m);
+        m.model.set_contact_sharpness(Some(1.0)).unwrap();
+        assert_eq!(
+            flat(m.model.sample(&e, Some(&start), None).unwrap()),
+            plain,
+            "{name}"
+        );
+        m.model.set_contact_sharpness(Some(4.0)).unwrap();
+        let sharp = flat(m.model.sample(&e, Some(&start), None).unwrap());
+        // The start frames (3 × 58 values per motion) stay as they are.
+        let f = 58;
+        for k in 0..3 {
+            let row = k * 9 * f;
+            assert_eq!(sharp[row..row + 3 * f], plain[row..row + 3 * f], "{name}");
+        }
+        assert_eq!(rel(&sharp, &plain) > 1e-4, locks, "{name}");
+        assert_eq!(loss(&m), l1, "{name}");
+        for bad in [0.0, -1.0, f64::NAN] {
+            assert!(
+                m.model.set_contact_sharpness(Some(bad)).is_err(),
+                "{name} {bad}"
+            );
+        }
+    }
+}
+
 /// The mask has the share asked for, and is a pure function of seed and step.
 #[test]
 fn feed_masks_have_their_share() {
