@@ -4,8 +4,8 @@
 # /sys/devices/system/cpu/cpuN/cache, and the block length decides the order
 # of the sum; `motion_vrnn::blocks::kernels::mm` cuts that dimension itself
 # (docs/training.md, "Speed"). This trains the default model (conditioned on
-# the category) for 2 epochs twice, once as the machine is and once with the
-# L1 shown to `gemm` as 48 KiB 12-way (a copy of the cache folders,
+# the category) and the motion classifier for 2 epochs each, twice: once as
+# the machine is and once with the L1 shown to `gemm` as 48 KiB 12-way (a copy of the cache folders,
 # bind-mounted inside a private mount namespace), and wants identical weights.
 #
 # Needs `unshare -m` (root, or a user namespace); without it, it says
@@ -50,6 +50,7 @@ quiet() { "$@" >"$log" 2>&1 || { cat "$log" >&2; echo "cache-check: $* failed" >
 quiet "$xtask" dataset --source "$shared/cmu-asfamc-sample.zip" --out "$work/data"
 train=(train --data "$work/data" --preset quick --epochs 2 --condition category --seed 3)
 quiet "$xtask" "${train[@]}" --out "$work/real"
+quiet "$xtask" train-classifier --data "$work/data" --epochs 2 --out "$work/real-classifier"
 # shellcheck disable=SC2016
 unshare -m bash -c '
   set -e
@@ -57,12 +58,15 @@ unshare -m bash -c '
     mount --bind "$fake" "/sys/devices/system/cpu/$(basename "$fake")/cache"
   done
   [ "$(cat /sys/devices/system/cpu/cpu0/cache/index0/size)" = 48K ] || [ "$(cat /sys/devices/system/cpu/cpu0/cache/index1/size)" = 48K ]
-  shift
-  "$@"
-' cache-check "$work" "$xtask" "${train[@]}" --out "$work/faked" >"$log" 2>&1 \
+  work="$1"; xtask="$2"; shift 2
+  "$xtask" "$@" --out "$work/faked"
+  "$xtask" train-classifier --data "$work/data" --epochs 2 --out "$work/faked-classifier"
+' cache-check "$work" "$xtask" "${train[@]}" >"$log" 2>&1 \
   || { cat "$log" >&2; echo "cache-check: training with the faked cache failed" >&2; exit 1; }
 for ck in last best; do
   cmp "$work/real/$ck/model.safetensors" "$work/faked/$ck/model.safetensors" \
     || { echo "cache-check: the $ck weights differ when gemm sees another L1 cache" >&2; exit 1; }
 done
-echo "the same weights with the L1 cache as it is and as 48 KiB 12-way"
+cmp "$work/real-classifier/classifier.safetensors" "$work/faked-classifier/classifier.safetensors" \
+  || { echo "cache-check: the classifier's weights differ when gemm sees another L1 cache" >&2; exit 1; }
+echo "the same weights (default model, classifier) with the L1 cache as it is and as 48 KiB 12-way"
