@@ -802,14 +802,14 @@ impl Vrnn {
         }
     }
 
-    /// Sample at temperature `t` ([`Parts::temperature`]; None: 1) instead
-    /// of the one the model was trained with.
     /// Generate in runs of at most `frames` new frames ([`Parts::restart`];
     /// None or 0: one run).
     pub fn set_restart(&mut self, frames: Option<usize>) {
         self.config.parts.restart = frames.filter(|&f| f > 0);
     }
 
+    /// Sample at temperature `t` ([`Parts::temperature`]; None: 1) instead
+    /// of the one the model was trained with.
     pub fn set_temperature(&mut self, t: Option<f64>) -> Result<()> {
         positive("temperature", t)?;
         self.config.parts.temperature = t;
