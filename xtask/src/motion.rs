@@ -55,7 +55,7 @@ pub struct RunArgs {
     pub category: Option<String>,
     /// Guidance scale of --category (1: as trained; 0: no category; above
     /// 1: further from the unconditioned model).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = motion_vrnn::generate::GUIDANCE)]
     pub guidance: f64,
 }
 

@@ -752,6 +752,21 @@ fn a_conditioned_run_samples_the_category_asked_for() {
     assert!(sample(&run, "none", "none").status.success());
     assert_eq!(parquet("own"), parquet("free"));
     assert_ne!(parquet("none"), parquet("free"));
+    // They ask at guidance 1.25 (`generate::GUIDANCE`, chosen on `val`);
+    // 1 is the model as trained, another motion.
+    for (g, out) in [("1.25", "g125"), ("1", "g1")] {
+        let o = xtask()
+            .args(["sample", "--n", "2", "--frames", "20", "--split", "val"])
+            .args(["--guidance", g, "--run"])
+            .arg(&run)
+            .arg("--out")
+            .arg(tmp.path().join(out))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert_eq!(parquet("g125"), parquet("free"));
+    assert_ne!(parquet("g1"), parquet("free"));
     let (_, h, _) = apng_frames(&tmp.path().join("free/category_sheet.png"));
     let (_, h1, _) = apng_frames(&tmp.path().join("free/contact_sheet.png"));
     assert!(

@@ -440,7 +440,8 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
         s,
         "Written by `cargo xtask compare --data {} --page {}{}` ({} seeds per model, the `standard` schedule{}). \
          Each run is evaluated as `cargo xtask eval` does: its `best` checkpoint, the 51-odd real `test` windows, \
-         one generated motion of 128 frames per test window (sampling seed 0, at the model's temperature, each continuing the first 16 frames of its window), \
+         one generated motion of 128 frames per test window (sampling seed 0, at the model's temperature, each continuing the first 16 frames of its window; \
+         a conditioned model asked for that window's category at guidance {}), \
          and the reconstructions of the test windows. Every value is the mean ± std over the seeds; \
          measures are defined in [metrics.md](metrics.md).\n",
         a.data.display(),
@@ -450,14 +451,15 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
             .map(|c| format!(" --classifier {}", c.display()))
             .unwrap_or_default(),
         a.seeds,
-        a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default()
+        a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default(),
+        motion_vrnn::generate::GUIDANCE
     );
     s += "Which split each choice was made on: every run's `best` checkpoint is chosen by the judge on \
           training windows (with `val` as its Fréchet reference); the parts of the default model and their \
           settings (issue 11) were chosen on the `test` split, which is slower than the data (issue 24); the \
           seam easing and restarting ([training.md](training.md)) were judged on generation from training \
           contexts and the `test` continuation together; conditioning the default model on the category was \
-          chosen on `val` (Fréchet distance and ELBO) and the minute from training contexts. Every table reports `test` or, for the minute, all \
+          chosen on `val` (Fréchet distance and ELBO) and the minute from training contexts, its guidance scale on `val`. Every table reports `test` or, for the minute, all \
           real windows.\n\n";
     s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
     for (name, _) in table {

@@ -46,7 +46,7 @@ pub struct RunSpec {
 
 impl RunSpec {
     /// The `best` checkpoint of `run` on the `test` split, seed 0, the
-    /// standard context, the model's own temperature.
+    /// standard context, the model's own temperature, the default guidance.
     pub fn best(run: PathBuf, data: Option<PathBuf>) -> RunSpec {
         RunSpec {
             run,
@@ -59,7 +59,7 @@ impl RunSpec {
             contact_sharpness: None,
             restart: None,
             category: None,
-            guidance: 1.0,
+            guidance: generate::GUIDANCE,
         }
     }
 }

@@ -69,6 +69,13 @@ pub struct Rollout {
     pub ask: Option<Ask>,
 }
 
+/// The guidance scale generation asks a category at unless told otherwise
+/// (`--guidance`, [`crate::model::Config::condition`]): chosen on `val` over
+/// 1 (as trained) and 1.5, with the three default seeds (`docs/training.md`,
+/// "A rerun on another machine"). Training, its validation loss and the
+/// judge read categories at 1.
+pub const GUIDANCE: f64 = 1.25;
+
 /// A category asked of a conditioned model.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ask {
