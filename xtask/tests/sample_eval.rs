@@ -657,16 +657,20 @@ fn a_conditioned_run_samples_the_category_asked_for() {
         .map(|c| c.as_str().unwrap().to_string())
         .collect();
     assert!(!known.is_empty());
-    let sample = |run: &Path, category: &str, out: &str| {
+    // `sample` with these options (none: as a user would call it).
+    let sample_with = |run: &Path, options: &[&str], out: &str| {
         xtask()
             .args(["sample", "--n", "2", "--frames", "20", "--split", "val"])
-            .args(["--category", category, "--run"])
+            .args(options)
+            .arg("--run")
             .arg(run)
             .arg("--out")
             .arg(tmp.path().join(out))
             .output()
             .unwrap()
     };
+    let sample =
+        |run: &Path, category: &str, out: &str| sample_with(run, &["--category", category], out);
     let o = sample(&run, &known[0], "asked");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(tmp.path().join("asked/samples.parquet").is_file());
@@ -698,15 +702,7 @@ fn a_conditioned_run_samples_the_category_asked_for() {
     // Without --category both sample as before; the conditioned run also
     // draws one row per category.
     for (r, out, conditioned) in [(&run, "free", true), (&plain, "free_plain", false)] {
-        let o = xtask()
-            .args([
-                "sample", "--n", "2", "--frames", "20", "--split", "val", "--run",
-            ])
-            .arg(r)
-            .arg("--out")
-            .arg(tmp.path().join(out))
-            .output()
-            .unwrap();
+        let o = sample_with(r, &[], out);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let sheet = tmp.path().join(out).join("category_sheet.png");
         assert_eq!(sheet.is_file(), conditioned, "{}", sheet.display());
@@ -755,14 +751,7 @@ fn a_conditioned_run_samples_the_category_asked_for() {
     // They ask at guidance 1.25 (`generate::GUIDANCE`, chosen on `val`);
     // 1 is the model as trained, another motion.
     for (g, out) in [("1.25", "g125"), ("1", "g1")] {
-        let o = xtask()
-            .args(["sample", "--n", "2", "--frames", "20", "--split", "val"])
-            .args(["--guidance", g, "--run"])
-            .arg(&run)
-            .arg("--out")
-            .arg(tmp.path().join(out))
-            .output()
-            .unwrap();
+        let o = sample_with(&run, &["--guidance", g], out);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
     assert_eq!(parquet("g125"), parquet("free"));
