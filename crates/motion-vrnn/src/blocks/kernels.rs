@@ -33,13 +33,15 @@ pub(crate) fn tr(off: usize, rs: usize) -> V {
 /// and every call `gemm` sees is a single block whatever the cache.
 pub(crate) const K_BLOCK: usize = 512;
 
-/// The lengths [`mm`] cuts an inner dimension of `k` into.
+/// The `(start, length)` pieces [`mm`] cuts an inner dimension of `k`
+/// into; an empty one is one empty piece, so `gemm` still writes `c`.
 pub(crate) fn k_blocks(k: usize) -> impl Iterator<Item = (usize, usize)> {
     let pieces = k.div_ceil(K_BLOCK).max(1);
     let len = k.div_ceil(pieces);
-    (0..k)
-        .step_by(len.max(1))
-        .map(move |start| (start, len.min(k - start)))
+    (0..pieces).map(move |i| {
+        let start = (i * len).min(k);
+        (start, len.min(k - start))
+    })
 }
 
 /// `c (+)= a · b` with `a: m×k`, `b: k×n`, `c: m×n`; single-threaded; the
@@ -181,6 +183,8 @@ mod tests {
             (0..8).map(|i| (512 * i, 512)).collect::<Vec<_>>()
         );
         assert_eq!(cut(1), [(0, 1)]);
+        assert_eq!(cut(0), [(0, 0)]);
+        assert_eq!(cut(1025), [(0, 342), (342, 342), (684, 341)]);
     }
 
     /// A product longer than one block, strided and accumulated, against a
