@@ -104,6 +104,50 @@ pub(crate) fn mm(
     }
 }
 
+/// Whether this CPU runs [`simd_fn!`]'s AVX2 + FMA instance.
+#[inline]
+pub(crate) fn has_avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// `fn name(args) -> R { body }`, its body compiled twice: for AVX2 and FMA
+/// (run where the CPU has them, detected at run time) and as built. The
+/// blocks' element-wise loops live in such functions: the build targets
+/// baseline x86-64 (SSE2, four lanes), and eight lanes cut their time. The
+/// bits do not change: Rust never contracts `a·b + c` into an FMA and never
+/// reorders a float sum, so every element comes from the same IEEE
+/// operations in the same order whatever the vector width (`gemm` picks its
+/// own kernel either way). Helpers the body calls must be
+/// `#[inline(always)]` to be compiled into the fast instance.
+macro_rules! simd_fn {
+    ($(#[$m:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) -> $ret:ty $body:block) => {
+        $(#[$m])*
+        $vis fn $name($($arg: $ty),*) -> $ret {
+            #[inline(always)]
+            fn body($($arg: $ty),*) -> $ret $body
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,fma")]
+            unsafe fn fast($($arg: $ty),*) -> $ret {
+                body($($arg),*)
+            }
+            #[cfg(target_arch = "x86_64")]
+            if $crate::blocks::kernels::has_avx2_fma() {
+                // SAFETY: the CPU has both features (checked just above).
+                return unsafe { fast($($arg),*) };
+            }
+            body($($arg),*)
+        }
+    };
+}
+pub(crate) use simd_fn;
+
 /// `exp(x)` in f32 without a libm call, so loops over it vectorise
 /// (Cephes' `expf`: `2ⁿ · p(r)` with `r = x − n·ln 2`; about 1 ulp).
 #[inline(always)]
@@ -185,6 +229,48 @@ mod tests {
         assert_eq!(cut(1), [(0, 1)]);
         assert_eq!(cut(0), [(0, 0)]);
         assert_eq!(cut(1025), [(0, 342), (342, 342), (684, 341)]);
+    }
+
+    simd_fn! {
+        /// The activations and a cell update over a slice, in [`simd_fn!`].
+        fn activations(x: &[f32]) -> Vec<f32> {
+            let mut out = Vec::with_capacity(4 * x.len());
+            out.extend(x.iter().map(|&v| exp(v)));
+            out.extend(x.iter().map(|&v| tanh(v)));
+            out.extend(x.iter().map(|&v| sigma(v)));
+            out.extend(x.iter().zip(x.iter().rev()).map(|(&a, &b)| a * b + b * sigmoid(a)));
+            out
+        }
+    }
+
+    /// The AVX2 instance of a [`simd_fn!`] gives the bits of the baseline
+    /// build, element by element, over the activations' whole range
+    /// (this machine runs the AVX2 one where it has the features; the loop
+    /// below is compiled for the baseline and not vectorised with AVX2).
+    #[test]
+    fn the_fast_instance_gives_the_baseline_bits() {
+        let x: Vec<f32> = (0..20_011)
+            .map(|i| (i as f32 - 10_005.0) * 0.0123 + (i % 7) as f32 * 1e-4)
+            .chain([0.0, -0.0, 1e-30, -1e-30, 100.0, -100.0, 88.7, -87.5])
+            .collect();
+        let got = activations(&x);
+        let mut want = Vec::with_capacity(4 * x.len());
+        for &v in &x {
+            want.push(std::hint::black_box(exp(v)));
+        }
+        for &v in &x {
+            want.push(std::hint::black_box(tanh(v)));
+        }
+        for &v in &x {
+            want.push(std::hint::black_box(sigma(v)));
+        }
+        for (&a, &b) in x.iter().zip(x.iter().rev()) {
+            want.push(std::hint::black_box(a * b + b * sigmoid(a)));
+        }
+        assert_eq!(got.len(), want.len());
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(g.to_bits(), w.to_bits(), "element {i}: {g} against {w}");
+        }
     }
 
     /// A product longer than one block, strided and accumulated, against a

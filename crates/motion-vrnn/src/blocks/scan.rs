@@ -15,7 +15,7 @@
 //! the state *before* the step (what the prior and the decoder read) and the
 //! posterior sample.
 
-use super::kernels::{dsigma, mm, rm, sigma, sigmoid, tanh, tr};
+use super::kernels::{dsigma, mm, rm, sigma, sigmoid, simd_fn, tanh, tr};
 use super::{fused, slice, tensor, with_values};
 use candle_core::{CpuStorage, CustomOp3, Layout, Result, Shape, Tensor, D};
 use std::sync::Mutex;
@@ -140,7 +140,7 @@ pub fn lstm_cell(gates: &Tensor, c: &Tensor) -> Result<(Tensor, Tensor)> {
 }
 
 /// Gate activations in place: sigmoid for i, f, o; tanh for g.
-#[inline]
+#[inline(always)]
 fn activate(g: &mut [f32], h: usize) {
     let (ifg, o) = g.split_at_mut(3 * h);
     let (i_f, gg) = ifg.split_at_mut(2 * h);
@@ -150,26 +150,22 @@ fn activate(g: &mut [f32], h: usize) {
 }
 
 /// A row of the cell: `c = f·c_prev + i·g`, `tc = tanh c` from activated
-/// gates `[i | f | g | o]`.
-#[inline]
+/// gates `[i | f | g | o]`. Two plain loops over equal-length slices, so
+/// both vectorise (a zip of five did not, and `tanh` ran one lane at a time).
+#[inline(always)]
 fn cell_rows(g: &[f32], c_prev: &[f32], c: &mut [f32], tc: &mut [f32], h: usize) {
-    let (gi, rest) = g.split_at(h);
-    let (gf, rest) = rest.split_at(h);
-    let gg = &rest[..h];
-    for ((((cv, t), &p), (&i, &f)), &gv) in c
-        .iter_mut()
-        .zip(tc.iter_mut())
-        .zip(&c_prev[..h])
-        .zip(gi.iter().zip(gf))
-        .zip(gg)
-    {
-        *cv = f * p + i * gv;
-        *t = tanh(*cv);
+    let (gi, gf, gg) = (&g[..h], &g[h..2 * h], &g[2 * h..3 * h]);
+    let (c, tc, c_prev) = (&mut c[..h], &mut tc[..h], &c_prev[..h]);
+    for k in 0..h {
+        c[k] = gf[k] * c_prev[k] + gi[k] * gg[k];
+    }
+    for k in 0..h {
+        tc[k] = tanh(c[k]);
     }
 }
 
 /// Unit `k` of the cell: `(c, tanh c)` from activated gates and `c_{t−1}`.
-#[inline]
+#[inline(always)]
 fn cell(g: &[f32], c_prev: f32, k: usize, h: usize) -> (f32, f32) {
     let c = g[h + k] * c_prev + g[k] * g[2 * h + k];
     (c, tanh(c))
@@ -212,231 +208,235 @@ fn pack_zh(w: &[f32], d: ScanDims) -> Vec<f32> {
     out
 }
 
-impl ScanOp {
-    fn forward(
-        &self,
-        pre: &[f32],
-        eps: &[f32],
-        w: &[f32],
-        b: usize,
-        tt: usize,
-    ) -> (Vec<f32>, Cache) {
-        let ScanDims {
-            hidden: h,
-            latent: z,
-        } = self.dims;
-        let (p, o, zh, z2, h4) = (self.dims.pre(), self.dims.out(), z + h, 2 * z, 4 * h);
-        let n = b * tt;
-        let wzh = pack_zh(w, self.dims);
-        let mut u = vec![0.0f32; n * zh];
-        let mut e = vec![0.0f32; n * z2];
-        let mut g = vec![0.0f32; n * h4];
-        let mut c = vec![0.0f32; n * h];
-        let mut tc = vec![0.0f32; n * h];
-        for r in 0..n {
-            e[r * z2..(r + 1) * z2].copy_from_slice(&pre[r * p..r * p + z2]);
-            g[r * h4..(r + 1) * h4].copy_from_slice(&pre[r * p + z2..(r + 1) * p]);
-        }
-        let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
-        for t in 0..tt {
-            if t > 0 {
-                // e += h · W_eᵀ
-                mm(
-                    (b, z2, h),
-                    &mut e,
-                    rm(t * z2, se),
-                    true,
-                    &u,
-                    rm(t * zh + z, su),
-                    w,
-                    tr(0, h),
-                );
-            }
-            for s in 0..b {
-                let r = s * tt + t;
-                let (mu, sg) = e[r * z2..(r + 1) * z2].split_at_mut(z);
-                sg.iter_mut().for_each(|v| *v = sigma(*v));
-                let ur = &mut u[r * zh..r * zh + z];
-                let ep = &eps[r * z..(r + 1) * z];
-                for (((o, m), sv), ev) in ur.iter_mut().zip(&*mu).zip(&*sg).zip(ep) {
-                    *o = m + sv * ev;
-                }
-            }
-            // g += [z | h] · [W_z | W_h]ᵀ
+simd_fn! {
+/// The recurrence forward over `b` sequences of `tt` rows: the output rows
+/// and what the backward pass needs.
+fn forward(
+    op: &ScanOp,
+    pre: &[f32],
+    eps: &[f32],
+    w: &[f32],
+    b: usize,
+    tt: usize,
+) -> (Vec<f32>, Cache) {
+    let ScanDims {
+        hidden: h,
+        latent: z,
+    } = op.dims;
+    let (p, o, zh, z2, h4) = (op.dims.pre(), op.dims.out(), z + h, 2 * z, 4 * h);
+    let n = b * tt;
+    let wzh = pack_zh(w, op.dims);
+    let mut u = vec![0.0f32; n * zh];
+    let mut e = vec![0.0f32; n * z2];
+    let mut g = vec![0.0f32; n * h4];
+    let mut c = vec![0.0f32; n * h];
+    let mut tc = vec![0.0f32; n * h];
+    for r in 0..n {
+        e[r * z2..(r + 1) * z2].copy_from_slice(&pre[r * p..r * p + z2]);
+        g[r * h4..(r + 1) * h4].copy_from_slice(&pre[r * p + z2..(r + 1) * p]);
+    }
+    let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
+    for t in 0..tt {
+        if t > 0 {
+            // e += h · W_eᵀ
             mm(
-                (b, h4, zh),
-                &mut g,
-                rm(t * h4, sg),
+                (b, z2, h),
+                &mut e,
+                rm(t * z2, se),
                 true,
                 &u,
-                rm(t * zh, su),
-                &wzh,
-                tr(0, zh),
+                rm(t * zh + z, su),
+                w,
+                tr(0, h),
             );
-            for s in 0..b {
-                let r = s * tt + t;
-                let gr = &mut g[r * h4..(r + 1) * h4];
-                activate(gr, h);
-                let (before, now) = c.split_at_mut(r * h);
-                let c_prev = if t > 0 {
-                    &before[(r - 1) * h..]
-                } else {
-                    &self.zeros[..h]
-                };
-                let (cn, tn) = (&mut now[..h], &mut tc[r * h..(r + 1) * h]);
-                cell_rows(gr, c_prev, cn, tn, h);
-                if t + 1 < tt {
-                    let hn = &mut u[(r + 1) * zh + z..(r + 2) * zh];
-                    for ((o, og), tv) in hn.iter_mut().zip(&gr[3 * h..]).zip(&*tn) {
-                        *o = og * tv;
-                    }
+        }
+        for s in 0..b {
+            let r = s * tt + t;
+            let (mu, sg) = e[r * z2..(r + 1) * z2].split_at_mut(z);
+            sg.iter_mut().for_each(|v| *v = sigma(*v));
+            let ur = &mut u[r * zh..r * zh + z];
+            let ep = &eps[r * z..(r + 1) * z];
+            for (((o, m), sv), ev) in ur.iter_mut().zip(&*mu).zip(&*sg).zip(ep) {
+                *o = m + sv * ev;
+            }
+        }
+        // g += [z | h] · [W_z | W_h]ᵀ
+        mm(
+            (b, h4, zh),
+            &mut g,
+            rm(t * h4, sg),
+            true,
+            &u,
+            rm(t * zh, su),
+            &wzh,
+            tr(0, zh),
+        );
+        for s in 0..b {
+            let r = s * tt + t;
+            let gr = &mut g[r * h4..(r + 1) * h4];
+            activate(gr, h);
+            let (before, now) = c.split_at_mut(r * h);
+            let c_prev = if t > 0 {
+                &before[(r - 1) * h..]
+            } else {
+                &op.zeros[..h]
+            };
+            let (cn, tn) = (&mut now[..h], &mut tc[r * h..(r + 1) * h]);
+            cell_rows(gr, c_prev, cn, tn, h);
+            if t + 1 < tt {
+                let hn = &mut u[(r + 1) * zh + z..(r + 2) * zh];
+                for ((o, og), tv) in hn.iter_mut().zip(&gr[3 * h..]).zip(&*tn) {
+                    *o = og * tv;
                 }
             }
         }
-        let mut out = vec![0.0f32; n * o];
-        for r in 0..n {
-            let row = &mut out[r * o..(r + 1) * o];
-            row[..h].copy_from_slice(&u[r * zh + z..(r + 1) * zh]);
-            row[h..h + z2].copy_from_slice(&e[r * z2..(r + 1) * z2]);
-            row[h + z2..].copy_from_slice(&u[r * zh..r * zh + z]);
-        }
-        (out, Cache { u, e, g, c, tc })
     }
+    let mut out = vec![0.0f32; n * o];
+    for r in 0..n {
+        let row = &mut out[r * o..(r + 1) * o];
+        row[..h].copy_from_slice(&u[r * zh + z..(r + 1) * zh]);
+        row[h..h + z2].copy_from_slice(&e[r * z2..(r + 1) * z2]);
+        row[h + z2..].copy_from_slice(&u[r * zh..r * zh + z]);
+    }
+    (out, Cache { u, e, g, c, tc })
+}
+}
 
-    /// Gradients of `pre` and `w` given the output's gradient `dout`.
-    #[allow(clippy::too_many_arguments)]
-    fn backward(
-        &self,
-        cache: &Cache,
-        dout: &[f32],
-        eps: &[f32],
-        w: &[f32],
-        b: usize,
-        tt: usize,
-    ) -> (Vec<f32>, Vec<f32>) {
-        let ScanDims {
-            hidden: h,
-            latent: z,
-        } = self.dims;
-        let (p, o, zh, z2, h4) = (self.dims.pre(), self.dims.out(), z + h, 2 * z, 4 * h);
-        let n = b * tt;
-        let wzh = pack_zh(w, self.dims);
-        let Cache { u, e, g, c, tc } = cache;
-        // dU holds, per row, d[z | h_{t−1}]; starts with the output's part.
-        let mut du = vec![0.0f32; n * zh];
-        for r in 0..n {
-            du[r * zh..r * zh + z].copy_from_slice(&dout[r * o + h + z2..(r + 1) * o]);
-            du[r * zh + z..(r + 1) * zh].copy_from_slice(&dout[r * o..r * o + h]);
-        }
-        let mut de = vec![0.0f32; n * z2];
-        let mut dg = vec![0.0f32; n * h4];
-        let mut dc = vec![0.0f32; b * h];
-        let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
-        for t in (0..tt).rev() {
-            for s in 0..b {
-                let r = s * tt + t;
-                let gr = &g[r * h4..(r + 1) * h4];
-                let (gi, rest) = gr.split_at(h);
-                let (gf, rest) = rest.split_at(h);
-                let (gg, go) = (&rest[..h], &rest[h..2 * h]);
-                let (di, rest) = dg[r * h4..(r + 1) * h4].split_at_mut(h);
-                let (df, rest) = rest.split_at_mut(h);
-                let (dgg, dgo) = rest.split_at_mut(h);
-                let dgo = &mut dgo[..h];
-                // Gradient of h_t: what step t + 1 saw as h_{t−1}.
-                let dh = if t + 1 < tt {
-                    &du[(r + 1) * zh + z..(r + 2) * zh]
-                } else {
-                    &self.zeros[..h]
-                };
-                let c_prev = if t > 0 {
-                    &c[(r - 1) * h..r * h]
-                } else {
-                    &self.zeros[..h]
-                };
-                let tcr = &tc[r * h..(r + 1) * h];
-                let dcr = &mut dc[s * h..(s + 1) * h];
-                for k in 0..h {
-                    let (ig, fg, gv, og) = (gi[k], gf[k], gg[k], go[k]);
-                    let tcv = tcr[k];
-                    let dcv = dcr[k] + dh[k] * og * (1.0 - tcv * tcv);
-                    dcr[k] = dcv * fg;
-                    di[k] = dcv * gv * ig * (1.0 - ig);
-                    df[k] = dcv * c_prev[k] * fg * (1.0 - fg);
-                    dgg[k] = dcv * ig * (1.0 - gv * gv);
-                    dgo[k] = dh[k] * tcv * og * (1.0 - og);
-                }
-            }
-            // d[z | h] += dG · [W_z | W_h]
-            mm(
-                (b, zh, h4),
-                &mut du,
-                rm(t * zh, su),
-                true,
-                &dg,
-                rm(t * h4, sg),
-                &wzh,
-                rm(0, zh),
-            );
-            for s in 0..b {
-                let r = s * tt + t;
-                for k in 0..z {
-                    let dz = du[r * zh + k];
-                    let sv = e[r * z2 + z + k];
-                    de[r * z2 + k] = dout[r * o + h + k] + dz;
-                    de[r * z2 + z + k] =
-                        (dout[r * o + h + z + k] + dz * eps[r * z + k]) * dsigma(sv);
-                }
-            }
-            if t > 0 {
-                // dh_{t−1} += dE · W_e
-                mm(
-                    (b, h, z2),
-                    &mut du,
-                    rm(t * zh + z, su),
-                    true,
-                    &de,
-                    rm(t * z2, se),
-                    w,
-                    rm(0, h),
-                );
-            }
-        }
-        // Weights, batched over all rows.
-        let mut dw = vec![0.0f32; self.dims.weights()];
-        mm(
-            (z2, h, n),
-            &mut dw,
-            rm(0, h),
-            false,
-            &de,
-            tr(0, z2),
-            u,
-            rm(z, zh),
-        );
-        let mut dwzh = vec![0.0f32; h4 * zh];
-        mm(
-            (h4, zh, n),
-            &mut dwzh,
-            rm(0, zh),
-            false,
-            &dg,
-            tr(0, h4),
-            u,
-            rm(0, zh),
-        );
-        let (oz, oh) = (2 * z * h, 2 * z * h + 4 * h * z);
-        for r in 0..h4 {
-            dw[oz + r * z..oz + (r + 1) * z].copy_from_slice(&dwzh[r * zh..r * zh + z]);
-            dw[oh + r * h..oh + (r + 1) * h].copy_from_slice(&dwzh[r * zh + z..(r + 1) * zh]);
-        }
-        let mut dpre = vec![0.0f32; n * p];
-        for r in 0..n {
-            dpre[r * p..r * p + z2].copy_from_slice(&de[r * z2..(r + 1) * z2]);
-            dpre[r * p + z2..(r + 1) * p].copy_from_slice(&dg[r * h4..(r + 1) * h4]);
-        }
-        (dpre, dw)
+simd_fn! {
+/// Gradients of `pre` and `w` given the output's gradient `dout`.
+#[allow(clippy::too_many_arguments)]
+fn backward(
+    op: &ScanOp,
+    cache: &Cache,
+    dout: &[f32],
+    eps: &[f32],
+    w: &[f32],
+    b: usize,
+    tt: usize,
+) -> (Vec<f32>, Vec<f32>) {
+    let ScanDims {
+        hidden: h,
+        latent: z,
+    } = op.dims;
+    let (p, o, zh, z2, h4) = (op.dims.pre(), op.dims.out(), z + h, 2 * z, 4 * h);
+    let n = b * tt;
+    let wzh = pack_zh(w, op.dims);
+    let Cache { u, e, g, c, tc } = cache;
+    // dU holds, per row, d[z | h_{t−1}]; starts with the output's part.
+    let mut du = vec![0.0f32; n * zh];
+    for r in 0..n {
+        du[r * zh..r * zh + z].copy_from_slice(&dout[r * o + h + z2..(r + 1) * o]);
+        du[r * zh + z..(r + 1) * zh].copy_from_slice(&dout[r * o..r * o + h]);
     }
+    let mut de = vec![0.0f32; n * z2];
+    let mut dg = vec![0.0f32; n * h4];
+    let mut dc = vec![0.0f32; b * h];
+    let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
+    for t in (0..tt).rev() {
+        for s in 0..b {
+            let r = s * tt + t;
+            let gr = &g[r * h4..(r + 1) * h4];
+            let (gi, rest) = gr.split_at(h);
+            let (gf, rest) = rest.split_at(h);
+            let (gg, go) = (&rest[..h], &rest[h..2 * h]);
+            let (di, rest) = dg[r * h4..(r + 1) * h4].split_at_mut(h);
+            let (df, rest) = rest.split_at_mut(h);
+            let (dgg, dgo) = rest.split_at_mut(h);
+            let dgo = &mut dgo[..h];
+            // Gradient of h_t: what step t + 1 saw as h_{t−1}.
+            let dh = if t + 1 < tt {
+                &du[(r + 1) * zh + z..(r + 2) * zh]
+            } else {
+                &op.zeros[..h]
+            };
+            let c_prev = if t > 0 {
+                &c[(r - 1) * h..r * h]
+            } else {
+                &op.zeros[..h]
+            };
+            let tcr = &tc[r * h..(r + 1) * h];
+            let dcr = &mut dc[s * h..(s + 1) * h];
+            for k in 0..h {
+                let (ig, fg, gv, og) = (gi[k], gf[k], gg[k], go[k]);
+                let tcv = tcr[k];
+                let dcv = dcr[k] + dh[k] * og * (1.0 - tcv * tcv);
+                dcr[k] = dcv * fg;
+                di[k] = dcv * gv * ig * (1.0 - ig);
+                df[k] = dcv * c_prev[k] * fg * (1.0 - fg);
+                dgg[k] = dcv * ig * (1.0 - gv * gv);
+                dgo[k] = dh[k] * tcv * og * (1.0 - og);
+            }
+        }
+        // d[z | h] += dG · [W_z | W_h]
+        mm(
+            (b, zh, h4),
+            &mut du,
+            rm(t * zh, su),
+            true,
+            &dg,
+            rm(t * h4, sg),
+            &wzh,
+            rm(0, zh),
+        );
+        for s in 0..b {
+            let r = s * tt + t;
+            for k in 0..z {
+                let dz = du[r * zh + k];
+                let sv = e[r * z2 + z + k];
+                de[r * z2 + k] = dout[r * o + h + k] + dz;
+                de[r * z2 + z + k] =
+                    (dout[r * o + h + z + k] + dz * eps[r * z + k]) * dsigma(sv);
+            }
+        }
+        if t > 0 {
+            // dh_{t−1} += dE · W_e
+            mm(
+                (b, h, z2),
+                &mut du,
+                rm(t * zh + z, su),
+                true,
+                &de,
+                rm(t * z2, se),
+                w,
+                rm(0, h),
+            );
+        }
+    }
+    // Weights, batched over all rows.
+    let mut dw = vec![0.0f32; op.dims.weights()];
+    mm(
+        (z2, h, n),
+        &mut dw,
+        rm(0, h),
+        false,
+        &de,
+        tr(0, z2),
+        u,
+        rm(z, zh),
+    );
+    let mut dwzh = vec![0.0f32; h4 * zh];
+    mm(
+        (h4, zh, n),
+        &mut dwzh,
+        rm(0, zh),
+        false,
+        &dg,
+        tr(0, h4),
+        u,
+        rm(0, zh),
+    );
+    let (oz, oh) = (2 * z * h, 2 * z * h + 4 * h * z);
+    for r in 0..h4 {
+        dw[oz + r * z..oz + (r + 1) * z].copy_from_slice(&dwzh[r * zh..r * zh + z]);
+        dw[oh + r * h..oh + (r + 1) * h].copy_from_slice(&dwzh[r * zh + z..(r + 1) * zh]);
+    }
+    let mut dpre = vec![0.0f32; n * p];
+    for r in 0..n {
+        dpre[r * p..r * p + z2].copy_from_slice(&de[r * z2..(r + 1) * z2]);
+        dpre[r * p + z2..(r + 1) * p].copy_from_slice(&dg[r * h4..(r + 1) * h4]);
+    }
+    (dpre, dw)
+}
 }
 
 impl CustomOp3 for ScanOp {
@@ -459,7 +459,7 @@ impl CustomOp3 for ScanOp {
             slice(s3, l3, "w")?,
         );
         let (b, t, _) = l1.shape().dims3()?;
-        let (out, cache) = self.forward(pre, eps, w, b, t);
+        let (out, cache) = forward(self, pre, eps, w, b, t);
         *self.cache.lock().unwrap_or_else(|p| p.into_inner()) = Some(cache);
         Ok((CpuStorage::F32(out), Shape::from((b, t, self.dims.out()))))
     }
@@ -478,9 +478,9 @@ impl CustomOp3 for ScanOp {
             with_values(w, |wv| {
                 let cache = match cached {
                     Some(c) => c,
-                    None => with_values(pre, |pv| Ok(self.forward(pv, ev, wv, b, t).1))?,
+                    None => with_values(pre, |pv| Ok(forward(self, pv, ev, wv, b, t).1))?,
                 };
-                with_values(grad, |g| Ok(self.backward(&cache, g, ev, wv, b, t)))
+                with_values(grad, |g| Ok(backward(self, &cache, g, ev, wv, b, t)))
             })
         })?;
         Ok((
