@@ -109,6 +109,7 @@ fn main() -> Result<()> {
     if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
         std::env::set_var("CANDLE_NUM_THREADS", "1");
     }
+    motion_vrnn::train::keep_freed_memory();
     match Cli::parse().command {
         Command::Dataset(args) => dataset::run(args),
         Command::Train(args) => train::run(args),
