@@ -647,6 +647,28 @@ impl Vrnn {
         }))
     }
 
+    /// The same model with every weight detached from the graph: what runs
+    /// through it keeps no graph and no buffers for a backward pass (the
+    /// feed rounds, whose output no gradient flows through).
+    fn detached(&self) -> Vrnn {
+        let lin = |l: &Lin| Lin {
+            w: l.w.detach(),
+            b: l.b.detach(),
+        };
+        Vrnn {
+            config: self.config.clone(),
+            phi_x: self.phi_x.each_ref().map(lin),
+            prior: self.prior.each_ref().map(lin),
+            encoder: self.encoder.each_ref().map(lin),
+            decoder: self.decoder.each_ref().map(lin),
+            w_ih: self.w_ih.detach(),
+            w_hh: self.w_hh.detach(),
+            b_ih: self.b_ih.detach(),
+            b_hh: self.b_hh.detach(),
+            cond: self.cond.as_ref().map(Tensor::detach),
+        }
+    }
+
     fn dims(&self) -> ScanDims {
         ScanDims {
             hidden: self.config.hidden,
@@ -947,7 +969,12 @@ impl MotionModel for Vrnn {
         let bias = self.bias(cond)?.map(|b| b.over_time()).transpose()?;
         let bias = bias.as_ref();
         let fed = match feed {
-            Some(mask) => Some(self.fed_back(x, &feat, &eps, mask, lengths.as_ref(), bias)?),
+            Some(mask) => {
+                let own = self.detached();
+                let b = own.bias(cond)?.map(|b| b.over_time()).transpose()?;
+                let feat = feat.detach();
+                Some(own.fed_back(x, &feat, &eps, mask, lengths.as_ref(), b.as_ref())?)
+            }
             None => None,
         };
         let s = self.scan(&feat, fed.as_ref(), &eps, bias)?;
