@@ -227,13 +227,14 @@ fn forward(
     let n = b * tt;
     let wzh = pack_zh(w, op.dims);
     let mut u = vec![0.0f32; n * zh];
-    let mut e = vec![0.0f32; n * z2];
-    let mut g = vec![0.0f32; n * h4];
     let mut c = vec![0.0f32; n * h];
     let mut tc = vec![0.0f32; n * h];
-    for r in 0..n {
-        e[r * z2..(r + 1) * z2].copy_from_slice(&pre[r * p..r * p + z2]);
-        g[r * h4..(r + 1) * h4].copy_from_slice(&pre[r * p + z2..(r + 1) * p]);
+    // The posterior and gate pre-activations start as `pre`'s two parts
+    // (filled by copying, not zeroed first).
+    let (mut e, mut g) = (Vec::with_capacity(n * z2), Vec::with_capacity(n * h4));
+    for row in pre.chunks_exact(p).take(n) {
+        e.extend_from_slice(&row[..z2]);
+        g.extend_from_slice(&row[z2..]);
     }
     let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
     for t in 0..tt {
@@ -291,12 +292,11 @@ fn forward(
             }
         }
     }
-    let mut out = vec![0.0f32; n * o];
-    for r in 0..n {
-        let row = &mut out[r * o..(r + 1) * o];
-        row[..h].copy_from_slice(&u[r * zh + z..(r + 1) * zh]);
-        row[h..h + z2].copy_from_slice(&e[r * z2..(r + 1) * z2]);
-        row[h + z2..].copy_from_slice(&u[r * zh..r * zh + z]);
+    let mut out = Vec::with_capacity(n * o);
+    for (ur, er) in u.chunks_exact(zh).zip(e.chunks_exact(z2)) {
+        out.extend_from_slice(&ur[z..]);
+        out.extend_from_slice(er);
+        out.extend_from_slice(&ur[..z]);
     }
     (out, Cache { u, e, g, c, tc })
 }
