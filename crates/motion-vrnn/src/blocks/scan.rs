@@ -210,7 +210,11 @@ fn pack_zh(w: &[f32], d: ScanDims) -> Vec<f32> {
 
 simd_fn! {
 /// The recurrence forward over `b` sequences of `tt` rows: the output rows
-/// and what the backward pass needs.
+/// and what the backward pass needs. Inside, rows are time-major (row
+/// `t·b + s` is step `t` of sequence `s`), so the `b` rows of one step lie
+/// together: in the input's order (`s·tt + t`) they were `tt` rows apart, a
+/// power-of-two stride that made every step's rows fight for the same
+/// cache sets.
 fn forward(
     op: &ScanOp,
     pre: &[f32],
@@ -232,31 +236,34 @@ fn forward(
     // The posterior and gate pre-activations start as `pre`'s two parts
     // (filled by copying, not zeroed first).
     let (mut e, mut g) = (Vec::with_capacity(n * z2), Vec::with_capacity(n * h4));
-    for row in pre.chunks_exact(p).take(n) {
-        e.extend_from_slice(&row[..z2]);
-        g.extend_from_slice(&row[z2..]);
-    }
-    let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
     for t in 0..tt {
+        for s in 0..b {
+            let row = &pre[(s * tt + t) * p..(s * tt + t + 1) * p];
+            e.extend_from_slice(&row[..z2]);
+            g.extend_from_slice(&row[z2..]);
+        }
+    }
+    for t in 0..tt {
+        let base = t * b;
         if t > 0 {
             // e += h · W_eᵀ
             mm(
                 (b, z2, h),
                 &mut e,
-                rm(t * z2, se),
+                rm(base * z2, z2),
                 true,
                 &u,
-                rm(t * zh + z, su),
+                rm(base * zh + z, zh),
                 w,
                 tr(0, h),
             );
         }
         for s in 0..b {
-            let r = s * tt + t;
+            let r = base + s;
             let (mu, sg) = e[r * z2..(r + 1) * z2].split_at_mut(z);
             sg.iter_mut().for_each(|v| *v = sigma(*v));
             let ur = &mut u[r * zh..r * zh + z];
-            let ep = &eps[r * z..(r + 1) * z];
+            let ep = &eps[(s * tt + t) * z..(s * tt + t + 1) * z];
             for (((o, m), sv), ev) in ur.iter_mut().zip(&*mu).zip(&*sg).zip(ep) {
                 *o = m + sv * ev;
             }
@@ -265,45 +272,51 @@ fn forward(
         mm(
             (b, h4, zh),
             &mut g,
-            rm(t * h4, sg),
+            rm(base * h4, h4),
             true,
             &u,
-            rm(t * zh, su),
+            rm(base * zh, zh),
             &wzh,
             tr(0, zh),
         );
         for s in 0..b {
-            let r = s * tt + t;
+            let r = base + s;
             let gr = &mut g[r * h4..(r + 1) * h4];
             activate(gr, h);
             let (before, now) = c.split_at_mut(r * h);
             let c_prev = if t > 0 {
-                &before[(r - 1) * h..]
+                &before[(r - b) * h..(r - b + 1) * h]
             } else {
                 &op.zeros[..h]
             };
             let (cn, tn) = (&mut now[..h], &mut tc[r * h..(r + 1) * h]);
             cell_rows(gr, c_prev, cn, tn, h);
             if t + 1 < tt {
-                let hn = &mut u[(r + 1) * zh + z..(r + 2) * zh];
+                let hn = &mut u[(r + b) * zh + z..(r + b + 1) * zh];
                 for ((o, og), tv) in hn.iter_mut().zip(&gr[3 * h..]).zip(&*tn) {
                     *o = og * tv;
                 }
             }
         }
     }
+    // The output in the input's order.
     let mut out = Vec::with_capacity(n * o);
-    for (ur, er) in u.chunks_exact(zh).zip(e.chunks_exact(z2)) {
-        out.extend_from_slice(&ur[z..]);
-        out.extend_from_slice(er);
-        out.extend_from_slice(&ur[..z]);
+    for s in 0..b {
+        for t in 0..tt {
+            let r = t * b + s;
+            out.extend_from_slice(&u[r * zh + z..(r + 1) * zh]);
+            out.extend_from_slice(&e[r * z2..(r + 1) * z2]);
+            out.extend_from_slice(&u[r * zh..r * zh + z]);
+        }
     }
     (out, Cache { u, e, g, c, tc })
 }
 }
 
 simd_fn! {
-/// Gradients of `pre` and `w` given the output's gradient `dout`.
+/// Gradients of `pre` and `w` given the output's gradient `dout` (rows
+/// time-major inside, as in [`forward`]; the weights' gradients sum the
+/// rows in the input's order, as before the rows were reordered).
 #[allow(clippy::too_many_arguments)]
 fn backward(
     op: &ScanOp,
@@ -324,17 +337,20 @@ fn backward(
     let Cache { u, e, g, c, tc } = cache;
     // dU holds, per row, d[z | h_{t−1}]; starts with the output's part.
     let mut du = vec![0.0f32; n * zh];
-    for r in 0..n {
-        du[r * zh..r * zh + z].copy_from_slice(&dout[r * o + h + z2..(r + 1) * o]);
-        du[r * zh + z..(r + 1) * zh].copy_from_slice(&dout[r * o..r * o + h]);
+    for s in 0..b {
+        for t in 0..tt {
+            let (r, q) = (t * b + s, s * tt + t);
+            du[r * zh..r * zh + z].copy_from_slice(&dout[q * o + h + z2..(q + 1) * o]);
+            du[r * zh + z..(r + 1) * zh].copy_from_slice(&dout[q * o..q * o + h]);
+        }
     }
     let mut de = vec![0.0f32; n * z2];
     let mut dg = vec![0.0f32; n * h4];
     let mut dc = vec![0.0f32; b * h];
-    let (su, se, sg) = (tt * zh, tt * z2, tt * h4);
     for t in (0..tt).rev() {
+        let base = t * b;
         for s in 0..b {
-            let r = s * tt + t;
+            let r = base + s;
             let gr = &g[r * h4..(r + 1) * h4];
             let (gi, rest) = gr.split_at(h);
             let (gf, rest) = rest.split_at(h);
@@ -345,12 +361,12 @@ fn backward(
             let dgo = &mut dgo[..h];
             // Gradient of h_t: what step t + 1 saw as h_{t−1}.
             let dh = if t + 1 < tt {
-                &du[(r + 1) * zh + z..(r + 2) * zh]
+                &du[(r + b) * zh + z..(r + b + 1) * zh]
             } else {
                 &op.zeros[..h]
             };
             let c_prev = if t > 0 {
-                &c[(r - 1) * h..r * h]
+                &c[(r - b) * h..(r - b + 1) * h]
             } else {
                 &op.zeros[..h]
             };
@@ -371,21 +387,20 @@ fn backward(
         mm(
             (b, zh, h4),
             &mut du,
-            rm(t * zh, su),
+            rm(base * zh, zh),
             true,
             &dg,
-            rm(t * h4, sg),
+            rm(base * h4, h4),
             &wzh,
             rm(0, zh),
         );
         for s in 0..b {
-            let r = s * tt + t;
+            let (r, q) = (base + s, s * tt + t);
             for k in 0..z {
                 let dz = du[r * zh + k];
                 let sv = e[r * z2 + z + k];
-                de[r * z2 + k] = dout[r * o + h + k] + dz;
-                de[r * z2 + z + k] =
-                    (dout[r * o + h + z + k] + dz * eps[r * z + k]) * dsigma(sv);
+                de[r * z2 + k] = dout[q * o + h + k] + dz;
+                de[r * z2 + z + k] = (dout[q * o + h + z + k] + dz * eps[q * z + k]) * dsigma(sv);
             }
         }
         if t > 0 {
@@ -393,13 +408,24 @@ fn backward(
             mm(
                 (b, h, z2),
                 &mut du,
-                rm(t * zh + z, su),
+                rm(base * zh + z, zh),
                 true,
                 &de,
-                rm(t * z2, se),
+                rm(base * z2, z2),
                 w,
                 rm(0, h),
             );
+        }
+    }
+    // Back to the input's order: `pre`'s gradient, and the rows the weights'
+    // gradients sum over (in that order, so the sums keep their order).
+    let (mut dpre, mut ub) = (Vec::with_capacity(n * p), Vec::with_capacity(n * zh));
+    for s in 0..b {
+        for t in 0..tt {
+            let r = t * b + s;
+            dpre.extend_from_slice(&de[r * z2..(r + 1) * z2]);
+            dpre.extend_from_slice(&dg[r * h4..(r + 1) * h4]);
+            ub.extend_from_slice(&u[r * zh..(r + 1) * zh]);
         }
     }
     // Weights, batched over all rows.
@@ -409,9 +435,9 @@ fn backward(
         &mut dw,
         rm(0, h),
         false,
-        &de,
-        tr(0, z2),
-        u,
+        &dpre,
+        tr(0, p),
+        &ub,
         rm(z, zh),
     );
     let mut dwzh = vec![0.0f32; h4 * zh];
@@ -420,20 +446,15 @@ fn backward(
         &mut dwzh,
         rm(0, zh),
         false,
-        &dg,
-        tr(0, h4),
-        u,
+        &dpre,
+        tr(z2, p),
+        &ub,
         rm(0, zh),
     );
     let (oz, oh) = (2 * z * h, 2 * z * h + 4 * h * z);
     for r in 0..h4 {
         dw[oz + r * z..oz + (r + 1) * z].copy_from_slice(&dwzh[r * zh..r * zh + z]);
         dw[oh + r * h..oh + (r + 1) * h].copy_from_slice(&dwzh[r * zh + z..(r + 1) * zh]);
-    }
-    let mut dpre = vec![0.0f32; n * p];
-    for r in 0..n {
-        dpre[r * p..r * p + z2].copy_from_slice(&de[r * z2..(r + 1) * z2]);
-        dpre[r * p + z2..(r + 1) * p].copy_from_slice(&dg[r * h4..(r + 1) * h4]);
     }
     (dpre, dw)
 }
