@@ -247,7 +247,14 @@ fn against_pytorch(
     out("");
     out(&format!(
         "{:>9} {:>6} {:>10} {:>11} {:>10} {:>6} {:>11} {:>10}",
-        "model", "batch", "median s", "÷ stepwise", "÷ hoisted", "goal", "met (step)", "met (hoist)"
+        "model",
+        "batch",
+        "median s",
+        "÷ stepwise",
+        "÷ hoisted",
+        "goal",
+        "met (step)",
+        "met (hoist)"
     ));
     let met = |x: f64, goal: f64| if x >= goal { "yes" } else { "no" };
     for r in rows {

@@ -1,6 +1,6 @@
 //! Dense layers over all rows at once, and the squared error.
 
-use super::kernels::{mm, rm, tr};
+use super::kernels::{mm, rm, simd_fn, tr};
 use super::{fused, slice, tensor, with_values};
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor, D};
 use serde::{Deserialize, Serialize};
@@ -104,25 +104,12 @@ impl CustomOp3 for LinearOp {
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
         let (rows, inp, out) = sizes(x.shape(), w.shape(), b.shape())?;
-        // g = grad ⊙ act'(y)
-        let g = with_values(grad, |g| {
-            let mut g = g.to_vec();
-            if self.act == Act::Relu {
-                with_values(res, |y| {
-                    for (d, &v) in g.iter_mut().zip(y) {
-                        *d = if v > 0.0 { *d } else { 0.0 };
-                    }
-                    Ok(())
-                })?;
-            }
-            Ok(g)
+        // g = grad ⊙ act'(y) and db = Σ_rows g, in one pass (rows in order,
+        // so db's sums keep their order).
+        let relu = self.act == Act::Relu;
+        let (g, db) = with_values(grad, |g| {
+            with_values(res, |y| Ok(relu_grad(g, y, out, relu)))
         })?;
-        let mut db = vec![0.0f32; out];
-        for r in g.chunks_exact(out.max(1)) {
-            for (d, v) in db.iter_mut().zip(r) {
-                *d += v;
-            }
-        }
         let mut dw = vec![0.0f32; out * inp];
         let mut dx = vec![0.0f32; rows * inp];
         with_values(x, |xv| {
@@ -157,6 +144,28 @@ impl CustomOp3 for LinearOp {
             Some(tensor(db, b.dims(), b)?),
         ))
     }
+}
+
+simd_fn! {
+/// `(g, db)` of a linear layer: the output's gradient `grad` through the
+/// activation (`relu`: zero where the output `y` is not positive), and its
+/// sum over the rows of width `out`.
+fn relu_grad(grad: &[f32], y: &[f32], out: usize, relu: bool) -> (Vec<f32>, Vec<f32>) {
+    let mut g = Vec::with_capacity(grad.len());
+    let mut db = vec![0.0f32; out];
+    for (gr, yr) in grad.chunks_exact(out.max(1)).zip(y.chunks_exact(out.max(1))) {
+        let start = g.len();
+        if relu {
+            g.extend(gr.iter().zip(yr).map(|(&d, &v)| if v > 0.0 { d } else { 0.0 }));
+        } else {
+            g.extend_from_slice(gr);
+        }
+        for (d, v) in db.iter_mut().zip(&g[start..]) {
+            *d += v;
+        }
+    }
+    (g, db)
+}
 }
 
 /// `Σ (a − b)²` over every element (a scalar).
