@@ -11,6 +11,7 @@ use mocap_ingest::features::NUM_FEATURES;
 use mocap_ingest::skeleton::Pose;
 use motion_metrics::{motion_stats, MotionStats, Options};
 use motion_vrnn::generate::{self, to_poses};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// How long and how many.
@@ -108,22 +109,26 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
     let opts = Options::default();
     let test_summaries = generate::summaries(&generate::windows_of(test), NUM_FEATURES);
     let per = len * NUM_FEATURES;
-    let mut out = Vec::new();
-    for k in 0..stretches {
-        let windows: Vec<Vec<f32>> = gen
-            .iter()
-            .map(|x| x[k * per..(k + 1) * per].to_vec())
-            .collect();
-        let poses: Vec<Vec<Pose>> = windows.iter().map(|x| to_poses(x, &m.data.stats)).collect();
-        out.push(Stretch {
-            start_s: (k * len) as f64 / fps,
-            generated: motion_stats(&poses, &opts),
-            frechet: motion_metrics::frechet(
-                &test_summaries,
-                &generate::summaries(&windows, NUM_FEATURES),
-            ),
-        });
-    }
+    // Each stretch alone (on rayon's threads, collected in order).
+    let out: Vec<Stretch> = (0..stretches)
+        .into_par_iter()
+        .map(|k| {
+            let windows: Vec<Vec<f32>> = gen
+                .iter()
+                .map(|x| x[k * per..(k + 1) * per].to_vec())
+                .collect();
+            let poses: Vec<Vec<Pose>> =
+                windows.iter().map(|x| to_poses(x, &m.data.stats)).collect();
+            Stretch {
+                start_s: (k * len) as f64 / fps,
+                generated: motion_stats(&poses, &opts),
+                frechet: motion_metrics::frechet(
+                    &test_summaries,
+                    &generate::summaries(&windows, NUM_FEATURES),
+                ),
+            }
+        })
+        .collect();
     // Every real window of the dataset, and draws of the generated set's size.
     let mut real: Vec<Vec<Pose>> = Vec::new();
     for split in SPLITS {
@@ -138,6 +143,7 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
     let all = motion_stats(&real, &opts);
     let draw = o.motions.min(real.len() / 2).max(1);
     let draws: Vec<MotionStats> = (0..REAL_DRAWS as u64)
+        .into_par_iter()
         .map(|d| {
             let perm = motion_vrnn::rng::Rng::new(spec.seed, 0xD4A7 + d).permutation(real.len());
             let pick: Vec<Vec<Pose>> = perm[..draw].iter().map(|&i| real[i].clone()).collect();

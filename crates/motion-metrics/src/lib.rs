@@ -110,22 +110,34 @@ pub fn root_speed(m: &[Pose], from: usize, fps: f64) -> f64 {
 /// distance between corresponding joints at corresponding frames (m). Motions
 /// are compared over their common length.
 pub fn apd(motions: &[Vec<Pose>]) -> f64 {
-    let (mut sum, mut pairs) = (0.0, 0usize);
-    for i in 0..motions.len() {
-        for j in i + 1..motions.len() {
-            let t = motions[i].len().min(motions[j].len());
-            if t == 0 {
-                continue;
-            }
-            let mut d = 0.0;
-            for f in 0..t {
-                for k in 0..NUM_JOINTS {
-                    d += norm(sub(motions[i][f][k], motions[j][f][k]));
+    use rayon::prelude::*;
+    // Each pair's mean distance on rayon's threads (pairs of motion `i`
+    // together), then summed one after the other in (i, j) order: the same
+    // bits as one thread.
+    let per_pair: Vec<Vec<f64>> = (0..motions.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut out = Vec::new();
+            for j in i + 1..motions.len() {
+                let t = motions[i].len().min(motions[j].len());
+                if t == 0 {
+                    continue;
                 }
+                let mut d = 0.0;
+                for f in 0..t {
+                    for k in 0..NUM_JOINTS {
+                        d += norm(sub(motions[i][f][k], motions[j][f][k]));
+                    }
+                }
+                out.push(d / (t * NUM_JOINTS) as f64);
             }
-            sum += d / (t * NUM_JOINTS) as f64;
-            pairs += 1;
-        }
+            out
+        })
+        .collect();
+    let (mut sum, mut pairs) = (0.0, 0usize);
+    for v in per_pair.iter().flatten() {
+        sum += v;
+        pairs += 1;
     }
     if pairs == 0 {
         0.0
@@ -476,7 +488,9 @@ pub fn frechet_of_subsets(real: &[Vec<f64>], pool: &[Vec<f64>]) -> Vec<f64> {
         return Vec::new();
     }
     let k = pool.len() / n;
+    use rayon::prelude::*;
     (0..k)
+        .into_par_iter()
         .map(|j| {
             let subset: Vec<Vec<f64>> = pool[j..].iter().step_by(k).take(n).cloned().collect();
             frechet(real, &subset)
