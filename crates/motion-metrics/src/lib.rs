@@ -124,9 +124,15 @@ pub fn apd(motions: &[Vec<Pose>]) -> f64 {
                     continue;
                 }
                 let mut d = 0.0;
-                for f in 0..t {
-                    for k in 0..NUM_JOINTS {
-                        d += norm(sub(motions[i][f][k], motions[j][f][k]));
+                for (a, b) in motions[i][..t].iter().zip(&motions[j][..t]) {
+                    // A frame's distances first (a loop that vectorises),
+                    // then summed joint by joint as before.
+                    let mut n = [0.0f64; NUM_JOINTS];
+                    for ((n, p), q) in n.iter_mut().zip(a).zip(b) {
+                        *n = norm(sub(*p, *q));
+                    }
+                    for v in n {
+                        d += v;
                     }
                 }
                 out.push(d / (t * NUM_JOINTS) as f64);
