@@ -265,11 +265,16 @@ pub fn foot_skating(m: &[Pose], o: &Options) -> (usize, usize, usize) {
 /// Every measure over a set of motions (per-motion values averaged; skating
 /// pooled over all foot-frames).
 pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
+    use rayon::prelude::*;
     let n = motions.len().max(1) as f64;
-    let mean = |f: &dyn Fn(&[Pose]) -> f64| motions.iter().map(|m| f(m)).sum::<f64>() / n;
+    // Each motion's value on rayon's threads, summed in the motions' order.
+    let mean = |f: &(dyn Fn(&[Pose]) -> f64 + Sync)| {
+        let each: Vec<f64> = motions.par_iter().map(|m| f(m)).collect();
+        each.iter().sum::<f64>() / n
+    };
     let (mut s, mut c, mut a) = (0, 0, 0);
-    for m in motions {
-        let (s1, c1, a1) = foot_skating(m, o);
+    let skating: Vec<_> = motions.par_iter().map(|m| foot_skating(m, o)).collect();
+    for (s1, c1, a1) in skating {
         s += s1;
         c += c1;
         a += a1;
