@@ -563,6 +563,53 @@ mod tests {
 
     use super::*;
 
+    /// The measures over many motions (APD's pairs, each motion's values,
+    /// Fréchet's subsets on rayon) are the same bits on one thread as on
+    /// several.
+    #[test]
+    fn measures_do_not_depend_on_the_thread_count() {
+        let mut state = 7u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let motions: Vec<Vec<Pose>> = (0..23)
+            .map(|_| {
+                (0..40)
+                    .map(|_| {
+                        let mut p = [[0.0; 3]; NUM_JOINTS];
+                        for (k, j) in p.iter_mut().enumerate() {
+                            *j = [next() * 20.0, 15.0 + k as f64 + next(), next() * 20.0];
+                        }
+                        p
+                    })
+                    .collect()
+            })
+            .collect();
+        let real: Vec<Vec<f64>> = (0..5).map(|_| (0..4).map(|_| next()).collect()).collect();
+        let pool: Vec<Vec<f64>> = (0..17).map(|_| (0..4).map(|_| next()).collect()).collect();
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a thread pool")
+                .install(|| {
+                    let st = motion_stats(&motions, &Options::default());
+                    (
+                        // Debug prints each f64 so that it reads back exactly.
+                        format!("{st:?}"),
+                        frechet_of_subsets(&real, &pool)
+                            .iter()
+                            .map(|v| v.to_bits())
+                            .collect::<Vec<_>>(),
+                    )
+                })
+        };
+        assert_eq!(run(1), run(3));
+    }
+
     fn still(x: f64) -> Vec<Pose> {
         let mut p: Pose = [[0.0; 3]; NUM_JOINTS];
         for (k, j) in p.iter_mut().enumerate() {
