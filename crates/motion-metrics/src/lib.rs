@@ -180,18 +180,19 @@ pub fn high_freq_share(m: &[Pose], fps: f64, cutoff_hz: f64) -> f64 {
     let hann: Vec<f64> = (0..n)
         .map(|t| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * t as f64 / (n - 1) as f64).cos())
         .collect();
-    // cos/sin of every (frequency, time) pair, computed once.
+    // cos/sin of every (time, frequency) pair, computed once.
     let freqs = n / 2;
     let (mut cos, mut sin) = (vec![0.0; freqs * n], vec![0.0; freqs * n]);
-    for f in 1..=freqs {
-        for t in 0..n {
+    for t in 0..n {
+        for f in 1..=freqs {
             let a = -2.0 * std::f64::consts::PI * ((f * t) % n) as f64 / n as f64;
-            cos[(f - 1) * n + t] = a.cos();
-            sin[(f - 1) * n + t] = a.sin();
+            cos[t * freqs + f - 1] = a.cos();
+            sin[t * freqs + f - 1] = a.sin();
         }
     }
     let (mut high, mut total) = (0.0, 0.0);
     let mut x = vec![0.0; n];
+    let (mut re, mut im) = (vec![0.0; freqs], vec![0.0; freqs]);
     for k in 1..NUM_JOINTS {
         for c in 0..3 {
             for (t, v) in x.iter_mut().enumerate() {
@@ -201,10 +202,23 @@ pub fn high_freq_share(m: &[Pose], fps: f64, cutoff_hz: f64) -> f64 {
             for (v, w) in x.iter_mut().zip(&hann) {
                 *v = (*v - mean) * w;
             }
-            for f in 1..=freqs {
-                let row = (f - 1) * n..f * n;
-                let re: f64 = x.iter().zip(&cos[row.clone()]).map(|(v, c)| v * c).sum();
-                let im: f64 = x.iter().zip(&sin[row]).map(|(v, s)| v * s).sum();
+            // Every frequency's sums at once, each over time in order (as
+            // `Iterator::sum`, from −0.0): the frequencies are independent,
+            // so the loop over them vectorises.
+            re.fill(-0.0);
+            im.fill(-0.0);
+            for (t, &v) in x.iter().enumerate() {
+                let row = t * freqs..(t + 1) * freqs;
+                for ((r, i), (cv, sv)) in re
+                    .iter_mut()
+                    .zip(im.iter_mut())
+                    .zip(cos[row.clone()].iter().zip(&sin[row]))
+                {
+                    *r += v * cv;
+                    *i += v * sv;
+                }
+            }
+            for (f, (re, im)) in (1..=freqs).zip(re.iter().zip(&im)) {
                 let p = re * re + im * im;
                 total += p;
                 if f as f64 * fps / n as f64 > cutoff_hz {
