@@ -528,6 +528,15 @@ struct Bias {
 }
 
 impl Bias {
+    /// The same rows detached from the graph (for the feed rounds).
+    fn detached(&self) -> Bias {
+        Bias {
+            pre: self.pre.detach(),
+            prior: self.prior.detach(),
+            decoder: self.decoder.detach(),
+        }
+    }
+
     /// The same rows for sequences `[B, T, ·]`.
     fn over_time(&self) -> Result<Bias> {
         Ok(Bias {
@@ -970,9 +979,9 @@ impl MotionModel for Vrnn {
         let bias = bias.as_ref();
         let fed = match feed {
             Some(mask) => {
-                let own = self.detached();
-                let b = own.bias(cond)?.map(|b| b.over_time()).transpose()?;
+                let b = bias.map(Bias::detached);
                 let feat = feat.detach();
+                let own = self.detached();
                 Some(own.fed_back(x, &feat, &eps, mask, lengths.as_ref(), b.as_ref())?)
             }
             None => None,
