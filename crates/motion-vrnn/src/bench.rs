@@ -27,9 +27,6 @@ pub struct StepTiming {
     pub min: f64,
     /// Median time to sample 36 motions, seconds.
     pub sample: f64,
-    /// The model's share of frames fed back (models that feed back are
-    /// timed at their full share).
-    pub self_feed: f64,
 }
 
 /// Time `steps` training steps (after 2 warm-up steps) of model `name` at
@@ -106,7 +103,6 @@ pub fn time_steps(
                 median: times[times.len() / 2],
                 min: times[0],
                 sample: sample[2],
-                self_feed: model.parts.self_feed,
             });
         }
     }
