@@ -107,6 +107,9 @@ fn a_learning_rate_that_cannot_train_is_refused() {
     let mut cfg = tiny_config();
     cfg.adam.lr = -1e-3;
     refused(cfg, "learning rate must be positive");
+    let mut cfg = tiny_config();
+    cfg.model.latent = 0;
+    refused(cfg, "latent size (--latent) must be at least 1");
     for f in [0.0, -0.5, 1.5, f64::NAN] {
         let cfg = TrainConfig {
             lr_final: Some(f),

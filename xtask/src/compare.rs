@@ -32,8 +32,7 @@ pub struct CompareArgs {
     /// Seconds each run's motions are rolled out for (0: no long horizon).
     #[arg(long, default_value_t = 60.0)]
     horizon: f64,
-    /// Reuse each run's kept report (RUN/compare-eval.json) instead of
-    /// evaluating it again.
+    /// Reuse each run's kept report (RUN/compare-eval.json) instead of evaluating it again.
     #[arg(long)]
     reuse_reports: bool,
     /// A classifier (`train-classifier`): also train the default model with

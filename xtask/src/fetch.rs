@@ -4,8 +4,7 @@ use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 
-/// The cached copy of `url` under `cache`, downloaded with a progress bar
-/// on first use.
+/// The cached copy of `url` under `cache`, downloaded with a progress bar on first use.
 pub fn cached(url: &str, cache: &Path, quiet: bool) -> Result<PathBuf> {
     let hit = mocap_fetch::cache_path(url, cache);
     if !quiet && hit.is_file() {

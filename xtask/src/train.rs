@@ -45,6 +45,9 @@ pub struct TrainArgs {
     /// std when generating, also for the checkpoint judge; 1: as trained).
     #[arg(long)]
     pub temperature: Option<f64>,
+    /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
+    #[arg(long)]
+    pub latent: Option<usize>,
     /// Starting point for every option below.
     /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
     /// stopping 60; `quick`: 30 epochs, warm-up 5, early stopping 10; `paper`:
@@ -168,6 +171,7 @@ impl TrainArgs {
             self_feed: self.self_feed,
             feed_rounds: self.feed_rounds,
             temperature: self.temperature,
+            latent: self.latent,
             epochs: self.epochs,
             batch: self.batch,
             lr: self.lr,
@@ -285,8 +289,7 @@ pub struct BenchArgs {
     /// Models to time (default: every model).
     #[arg(long = "model", value_parser = parse_model)]
     models: Vec<String>,
-    /// Also time each model through candle ops and autograd (the
-    /// blocks' reference path).
+    /// Also time each model through candle ops and autograd (the blocks' reference path).
     #[arg(long)]
     autograd: bool,
     /// A Python with PyTorch: also time the paper's model in PyTorch

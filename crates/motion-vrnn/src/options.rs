@@ -100,6 +100,8 @@ pub struct Overrides {
     pub feed_rounds: Option<usize>,
     /// Sampling temperature (1: the prior as trained).
     pub temperature: Option<f64>,
+    /// Latent size (the paper's 8).
+    pub latent: Option<usize>,
     /// Epochs.
     pub epochs: Option<usize>,
     /// Windows per step.
@@ -153,6 +155,9 @@ impl Overrides {
         }
         if let Some(v) = self.temperature {
             parts.temperature = (v != 1.0).then_some(v);
+        }
+        if let Some(v) = self.latent {
+            cfg.model.latent = v;
         }
         if let Some(v) = self.epochs {
             cfg.epochs = v;
@@ -223,9 +228,11 @@ mod tests {
             judge_every: Some(7),
             judge_stretches: Some(1),
             seed: Some(3),
+            latent: Some(16),
             ..Default::default()
         }
         .apply(&mut cfg);
+        assert_eq!(cfg.model.latent, 16);
         assert_eq!(cfg.judge_stretches, None);
         assert_eq!(cfg.model.parts.kl_weight, None);
         assert_eq!(cfg.clip_grad_norm, None);

@@ -646,6 +646,11 @@ pub fn train(
             "the final learning rate share (--lr-final) must be in (0, 1], got {f}"
         )));
     }
+    if config.model.latent == 0 {
+        return Err(TrainError::Invalid(
+            "the latent size (--latent) must be at least 1".into(),
+        ));
+    }
     let val = data.splits.get("val").filter(|w| w.n > 0);
     if resume && !run.is_dir() {
         return Err(TrainError::Invalid(format!(
