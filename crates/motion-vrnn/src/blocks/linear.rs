@@ -26,7 +26,7 @@ pub fn linear(x: &Tensor, w: &Tensor, b: &Tensor, act: Act) -> Result<Tensor> {
     let rows = x.elem_count() / dims[dims.len() - 1];
     let y = x
         .reshape((rows, dims[dims.len() - 1]))?
-        .matmul(&w.t()?)?
+        .matmul(&w.contiguous()?.t()?)?
         .broadcast_add(b)?;
     let y = match act {
         Act::None => y,
