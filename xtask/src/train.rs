@@ -203,7 +203,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let n = |s: &str| data.splits.get(s).map_or(0, |w| w.n);
     if !a.quiet {
         eprintln!(
-            "training the {} model{} on {} train / {} val windows from {} on {:?}; batch {}, {} epochs, lr {}",
+            "training the {} model{} on {} train / {} val windows from {} on {}; batch {}, {} epochs, lr {}",
             a.model,
             match cfg.condition {
                 Some(_) => " conditioned on the category (--condition none: without)",
@@ -212,7 +212,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
             n("train"),
             n("val"),
             a.data.display(),
-            device,
+            motion_vrnn::model::device_name(&device),
             cfg.batch,
             cfg.epochs,
             cfg.adam.lr
