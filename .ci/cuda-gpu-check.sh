@@ -131,6 +131,7 @@ sys.exit(1 if bad else 0)
 EOF
   rm -rf "$work"/sample-*/anim "$work/xtask"
   tar czf "${OUT:-/tmp}/cuda-gpu-check.tgz" -C /tmp cuda-gpu-check
+  if [ "$rc" = 0 ]; then echo "cuda-gpu-check: passed"; else echo "cuda-gpu-check: FAILED (see above)"; fi
   return $rc
 }
 
