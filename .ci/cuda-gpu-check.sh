@@ -79,14 +79,13 @@ run() {
   nvidia-smi --query-gpu=name,driver_version --format=csv,noheader || echo "nvidia-smi failed"
   ! ldd "$x" | grep 'not found' || die "libraries missing (above)"
   train() { # NAME DEVICE(gpu|cpu) ARGS…
-    local n=$1 d=$2 s rc
+    local n=$1 d=$2 s rc hide=()
     shift 2
     s=$(date +%s)
-    if [ "$d" = cpu ]; then
-      CUDA_VISIBLE_DEVICES= timeout 300 "$x" train --data "$data" --seed 0 --epochs 5 --out "$work/$d/$n" "$@" >"$work/$d-$n.log" 2>&1 && rc=0 || rc=$?
-    else
-      timeout 300 "$x" train --data "$data" --seed 0 --epochs 5 --out "$work/$d/$n" "$@" >"$work/$d-$n.log" 2>&1 && rc=0 || rc=$?
-    fi
+    # On `cpu` no GPU is visible, so the same binary trains on the CPU.
+    [ "$d" = cpu ] && hide=(env CUDA_VISIBLE_DEVICES=)
+    "${hide[@]}" timeout 300 "$x" train --data "$data" --seed 0 --epochs 5 \
+      --out "$work/$d/$n" "$@" >"$work/$d-$n.log" 2>&1 && rc=0 || rc=$?
     echo "$n on $d: rc $rc, $(($(date +%s) - s)) s, ran $(grep -o 'on CUDA GPU [0-9]*\|on the CPU' "$work/$d-$n.log" | head -1)"
     [ "$rc" = 0 ] || grep -A3 '^Error' "$work/$d-$n.log" | head -4
     if [ "$d" = gpu ] && ! grep -q 'on CUDA GPU' "$work/$d-$n.log"; then
