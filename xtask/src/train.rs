@@ -286,8 +286,8 @@ pub struct BenchArgs {
     /// Timed steps per batch size (after 2 warm-up steps).
     #[arg(long, default_value_t = 5)]
     steps: usize,
-    /// Models to time (default: every model).
-    #[arg(long = "model", value_parser = parse_model)]
+    /// Models to time (default: every model, then `motion+category`, what `train` trains by default).
+    #[arg(long = "model", value_parser = bench::parse_model)]
     models: Vec<String>,
     /// Also time each model through candle ops and autograd (the blocks' reference path).
     #[arg(long)]

@@ -12,6 +12,63 @@ use std::path::Path;
 /// Frames per window in the benchmark.
 pub const FRAMES: usize = 128;
 
+/// The bench's name for what `cargo xtask train` trains by default: `motion`
+/// conditioned on the category (every category of the list, each window
+/// asking for one, a tenth for none, as [`crate::train::CONDITION_DROPOUT`]).
+pub const CONDITIONED: &str = "motion+category";
+
+/// The models `bench-train` times: every model of [`crate::model::MODELS`],
+/// then [`CONDITIONED`].
+pub fn bench_models() -> Vec<String> {
+    let mut v: Vec<String> = crate::model::MODELS
+        .iter()
+        .map(|m| m.0.to_string())
+        .collect();
+    v.push(CONDITIONED.to_string());
+    v
+}
+
+/// `name` if it is one of [`bench_models`], or an error listing them (a
+/// command-line parser).
+pub fn parse_model(name: &str) -> Result<String, String> {
+    let known = bench_models();
+    match known.iter().any(|m| m == name) {
+        true => Ok(name.to_string()),
+        false => Err(format!(
+            "unknown model {name:?}; the models: {}",
+            known.join(", ")
+        )),
+    }
+}
+
+/// The configuration `name` ([`bench_models`]) stands for.
+fn bench_config(name: &str) -> Option<Config> {
+    if name == CONDITIONED {
+        let mut c = Config::named(crate::model::DEFAULT_MODEL)?;
+        c.categories = mocap_ingest::category::Category::ALL
+            .iter()
+            .map(|c| c.name().to_string())
+            .collect();
+        return Some(c);
+    }
+    Config::named(name)
+}
+
+/// Condition weights for `b` windows of a conditioned model (None
+/// otherwise): window `k` asks for category row `1 + k % n`, every tenth for
+/// none.
+fn bench_condition(
+    model: &Config,
+    b: usize,
+    device: &Device,
+) -> candle_core::Result<Option<Tensor>> {
+    let n = model.categories.len();
+    let rows: Vec<Option<usize>> = (0..b)
+        .map(|k| (k % 10 != 9).then_some(1 + k % n.max(1)))
+        .collect();
+    model.condition(&rows, 1.0, device)
+}
+
 /// Seconds per training step of one model, path and batch size.
 #[derive(Clone, Debug)]
 pub struct StepTiming {
@@ -40,8 +97,8 @@ pub fn time_steps(
     device: &Device,
 ) -> Result<Vec<StepTiming>, TrainError> {
     let t = FRAMES;
-    let mut model = Config::named(name)
-        .ok_or_else(|| TrainError::Invalid(format!("unknown model {name:?}")))?;
+    let mut model =
+        bench_config(name).ok_or_else(|| TrainError::Invalid(format!("unknown model {name:?}")))?;
     // Synthetic data: the body of the skeleton part from random windows.
     let train = crate::rng::Rng::new(2, 0).normals(64 * t * model.input);
     let mut mean = vec![0.0; model.input];
@@ -63,16 +120,18 @@ pub fn time_steps(
                 (b, t, model.input),
                 device,
             )?;
+            let cond = bench_condition(&model, b, device)?;
             let mut times = Vec::new();
             for step in 0..steps.max(1) + 2 {
                 let eps = noise(0, step as u64, t, b, model.latent, device)?;
                 let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, device)?;
                 let start = std::time::Instant::now();
                 let grads = if path == "fused" {
-                    sharded(&m.model, &x, &eps, feed.as_ref(), None, Some((1.0, &vars)))?.1
+                    let c = cond.as_ref();
+                    sharded(&m.model, &x, &eps, feed.as_ref(), c, Some((1.0, &vars)))?.1
                 } else {
                     crate::blocks::reference(|| {
-                        let l = m.model.losses(&x, &eps, feed.as_ref(), None)?;
+                        let l = m.model.losses(&x, &eps, feed.as_ref(), cond.as_ref())?;
                         ((&l.recon + &l.kl)? + &l.extra)?.backward().map(Some)
                     })?
                 };
@@ -169,7 +228,7 @@ pub fn speedup_goal(batch: usize) -> f64 {
 
 /// The `bench-train` report, line by line to `out`: seconds per training
 /// step (forward, backward, Adam) of each model of `models` (every model of
-/// [`crate::model::MODELS`] when empty) at each batch size on random
+/// [`bench_models`] when empty) at each batch size on random
 /// windows, and the sampling time; with `reference`, also through candle
 /// ops (autograd); with `pytorch = (python, script)`, every model against
 /// PyTorch eager on the paper's model ([`against_pytorch`]).
@@ -182,10 +241,7 @@ pub fn report(
     device: &Device,
     out: &mut dyn FnMut(&str),
 ) -> Result<(), TrainError> {
-    let every: Vec<String> = crate::model::MODELS
-        .iter()
-        .map(|m| m.0.to_string())
-        .collect();
+    let every = bench_models();
     let models = if models.is_empty() { &every } else { models };
     let steps = steps.max(1);
     out(&format!(

@@ -30,7 +30,7 @@ use crate::blocks::feet::{self, ground, lock, TOES};
 use crate::blocks::scan::ScanDims;
 use crate::blocks::skeleton::{bone_lengths, place, row_bone_lengths, BONES};
 use crate::blocks::{
-    self, filter, gaussian_kl, latent_lstm, linear, lstm_cell, squared_error, Act,
+    self, add_rows, filter, gaussian_kl, latent_lstm, linear, lstm_cell, squared_error, Act,
 };
 use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::VarBuilder;
@@ -550,6 +550,7 @@ impl Bias {
 /// `x` plus the bias where there is one.
 fn plus(x: Tensor, bias: Option<&Tensor>) -> Result<Tensor> {
     match bias {
+        Some(b) if x.rank() == 3 && b.rank() == 3 => add_rows(&x, b, Act::None),
         Some(b) => x.broadcast_add(b),
         None => Ok(x),
     }
@@ -752,6 +753,11 @@ impl Vrnn {
     fn decode_raw(&self, z: &Tensor, h: &Tensor, bias: Option<&Bias>) -> Result<Tensor> {
         let u = Tensor::cat(&[z, h], D::Minus1)?;
         let a = match bias {
+            Some(b) if u.rank() == 3 && b.decoder.rank() == 3 => add_rows(
+                &self.decoder[0].forward(&u, Act::None)?,
+                &b.decoder,
+                Act::Relu,
+            )?,
             Some(b) => self.decoder[0]
                 .forward(&u, Act::None)?
                 .broadcast_add(&b.decoder)?

@@ -113,6 +113,61 @@ fn linear_block() {
 }
 
 #[test]
+fn linear_without_an_input_gradient() {
+    // A plain input (data) gets no gradient; the weights' are the same.
+    let (x, w, b) = (
+        randn(1, &[3, 5, 7], 1.0),
+        randn(2, &[4, 7], 0.5),
+        randn(3, &[4], 0.5),
+    );
+    let grads = |x: &Tensor| {
+        let g = project(&blocks::linear(x, &w, &b, Act::Relu).unwrap())
+            .backward()
+            .unwrap();
+        (values(g.get(&w).unwrap()), values(g.get(&b).unwrap()))
+    };
+    let data = x.as_tensor().detach();
+    assert!(!data.track_op());
+    assert_eq!(grads(&data), grads(x.as_tensor()));
+}
+
+#[test]
+fn add_rows_block() {
+    let y = randn(11, &[3, 5, 6], 1.0);
+    for (name, r) in [
+        ("per sequence", randn(12, &[3, 1, 6], 0.5)),
+        ("shared", randn(13, &[1, 1, 6], 0.5)),
+    ] {
+        check(name, &[y.clone(), r.clone()], &[0, 1], 1e-6, 6, |t| {
+            blocks::add_rows(&t[0], &t[1], Act::None).unwrap()
+        });
+        check(name, &[y.clone(), r.clone()], &[0, 1], 1e-6, 0, |t| {
+            blocks::add_rows(&t[0], &t[1], Act::Relu).unwrap()
+        });
+        // To the bit: the model's numbers do not change with the block.
+        for act in [Act::None, Act::Relu] {
+            let ts = [y.as_tensor().clone(), r.as_tensor().clone()];
+            let run = || project(&blocks::add_rows(&ts[0], &ts[1], act).unwrap());
+            let (gf, gr) = (
+                run().backward().unwrap(),
+                blocks::reference(run).backward().unwrap(),
+            );
+            for v in [&y, &r] {
+                assert_eq!(values(gf.get(v).unwrap()), values(gr.get(v).unwrap()));
+            }
+            let fwd = || blocks::add_rows(&ts[0], &ts[1], act).unwrap();
+            assert_eq!(values(&fwd()), values(&blocks::reference(fwd)));
+        }
+    }
+    assert!(blocks::add_rows(
+        y.as_tensor(),
+        &Tensor::zeros((2, 1, 6), candle_core::DType::F32, &Device::Cpu).unwrap(),
+        Act::None
+    )
+    .is_err());
+}
+
+#[test]
 fn squared_error_block() {
     let (a, b) = (randn(4, &[2, 3, 5], 1.0), randn(5, &[2, 3, 5], 1.0));
     check("squared error", &[a, b], &[0, 1], 1e-5, 6, |t| {

@@ -111,7 +111,6 @@ impl CustomOp3 for LinearOp {
             with_values(res, |y| Ok(relu_grad(g, y, out, relu)))
         })?;
         let mut dw = vec![0.0f32; out * inp];
-        let mut dx = vec![0.0f32; rows * inp];
         with_values(x, |xv| {
             mm(
                 (out, inp, rows),
@@ -125,21 +124,30 @@ impl CustomOp3 for LinearOp {
             );
             Ok(())
         })?;
-        with_values(w, |wv| {
-            mm(
-                (rows, inp, out),
-                &mut dx,
-                rm(0, inp),
-                false,
-                &g,
-                rm(0, out),
-                wv,
-                rm(0, inp),
-            );
-            Ok(())
-        })?;
+        // No input gradient where nothing upstream needs it (the real
+        // frames, the fed-back ones): for the first layer it costs as much
+        // as the weights' gradient.
+        let dx = if x.track_op() {
+            let mut dx = vec![0.0f32; rows * inp];
+            with_values(w, |wv| {
+                mm(
+                    (rows, inp, out),
+                    &mut dx,
+                    rm(0, inp),
+                    false,
+                    &g,
+                    rm(0, out),
+                    wv,
+                    rm(0, inp),
+                );
+                Ok(())
+            })?;
+            Some(tensor(dx, x.dims(), x)?)
+        } else {
+            None
+        };
         Ok((
-            Some(tensor(dx, x.dims(), x)?),
+            dx,
             Some(tensor(dw, w.dims(), w)?),
             Some(tensor(db, b.dims(), b)?),
         ))
@@ -220,7 +228,131 @@ impl CustomOp2 for SquaredError {
             })
         })?;
         let da = tensor(da, a.dims(), a)?;
-        let db = da.neg()?;
-        Ok((Some(da), Some(db)))
+        // The target (real frames) usually needs no gradient.
+        let db = if b.track_op() { Some(da.neg()?) } else { None };
+        Ok((Some(da), db))
     }
+}
+
+/// `act(y + r)` with one row `r` per sequence: `y: [B, T, n]`, `r: [B, 1, n]`
+/// or `[1, 1, n]` (a condition's bias, added to every frame). One pass where
+/// candle's `broadcast_add` and `relu` take two forward and five backward.
+pub fn add_rows(y: &Tensor, r: &Tensor, act: Act) -> Result<Tensor> {
+    let (b, _, n) = y.dims3()?;
+    let (rb, one, rn) = r.dims3()?;
+    if one != 1 || rn != n || (rb != b && rb != 1) {
+        candle_core::bail!("add_rows: y {:?}, r {:?} do not fit", y.shape(), r.shape());
+    }
+    if fused(y) {
+        return y.contiguous()?.apply_op2(&r.contiguous()?, AddRows { act });
+    }
+    let s = y.broadcast_add(r)?;
+    match act {
+        Act::None => Ok(s),
+        Act::Relu => s.relu(),
+    }
+}
+
+/// The fused [`add_rows`].
+struct AddRows {
+    act: Act,
+}
+
+impl CustomOp2 for AddRows {
+    fn name(&self) -> &'static str {
+        "add-rows"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let (y, r) = (slice(s1, l1, "y")?, slice(s2, l2, "r")?);
+        let (b, t, n) = l1.shape().dims3()?;
+        let per = if l2.shape().dims()[0] == 1 { 0 } else { n };
+        let relu = self.act == Act::Relu;
+        let mut out = Vec::with_capacity(y.len());
+        for (s, ys) in y.chunks_exact((t * n).max(1)).enumerate().take(b) {
+            let rs = &r[s * per..s * per + n];
+            for yr in ys.chunks_exact(n.max(1)) {
+                out.extend(yr.iter().zip(rs).map(|(a, c)| {
+                    let v = a + c;
+                    if relu {
+                        v.max(0.0)
+                    } else {
+                        v
+                    }
+                }));
+            }
+        }
+        Ok((CpuStorage::F32(out), l1.shape().clone()))
+    }
+
+    /// The gradients as candle's autograd gives them, to the bit: `y`'s is
+    /// the output's (zero where `y + r < 0` under the ReLU), `r`'s its sum
+    /// over the frames (and the sequences, for a shared row) in row order.
+    fn bwd(
+        &self,
+        y: &Tensor,
+        r: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let (b, t, n) = y.dims3()?;
+        let shared = r.dim(0)? == 1;
+        let relu = self.act == Act::Relu;
+        let (dy, dr) = with_values(grad, |g| {
+            with_values(y, |yv| {
+                with_values(r, |rv| {
+                    Ok(add_rows_grad(g, yv, rv, [b, t, n], shared, relu))
+                })
+            })
+        })?;
+        Ok((
+            Some(tensor(dy, y.dims(), y)?),
+            Some(tensor(dr, r.dims(), r)?),
+        ))
+    }
+}
+
+simd_fn! {
+/// `(dy, dr)` of [`add_rows`] from the output's gradient `g`, rows in order.
+fn add_rows_grad(
+    g: &[f32],
+    y: &[f32],
+    r: &[f32],
+    dims: [usize; 3],
+    shared: bool,
+    relu: bool,
+) -> (Vec<f32>, Vec<f32>) {
+    let [b, t, n] = dims;
+    let per = if shared { 0 } else { n };
+    let mut dy = vec![0.0f32; g.len()];
+    let mut dr = vec![0.0f32; if shared { n } else { b * n }];
+    for s in 0..b {
+        let rs = &r[s * per..s * per + n];
+        let drs = &mut dr[s * per..s * per + n];
+        for k in 0..t {
+            let at = (s * t + k) * n;
+            let (gr, yr, dyr) = (&g[at..at + n], &y[at..at + n], &mut dy[at..at + n]);
+            // 0 + g: autograd adds into a zeroed buffer.
+            if relu {
+                for j in 0..n {
+                    dyr[j] = 0.0 + if yr[j] + rs[j] >= 0.0 { gr[j] } else { 0.0 };
+                }
+            } else {
+                for j in 0..n {
+                    dyr[j] = 0.0 + gr[j];
+                }
+            }
+            for j in 0..n {
+                drs[j] += dyr[j];
+            }
+        }
+    }
+    (dy, dr)
+}
 }

@@ -39,7 +39,7 @@ pub mod skeleton;
 
 pub use kernels::SIGMA_MIN;
 pub use kl::gaussian_kl;
-pub use linear::{linear, squared_error, Act};
+pub use linear::{add_rows, linear, squared_error, Act};
 pub use scan::{latent_lstm, lstm_cell};
 
 thread_local! {
