@@ -30,9 +30,52 @@ fn project(p: [f64; 3], centre: [f64; 3]) -> f64 {
     (p[0] - centre[0]) * c + (p[2] - centre[2]) * s
 }
 
+/// The part of the segment `a`–`b` inside the rectangle `[x0, x1] × [y0,
+/// y1]` (Liang–Barsky), or None when none of it is.
+fn clip_segment(
+    a: (f32, f32),
+    b: (f32, f32),
+    [x0, y0, x1, y1]: [f32; 4],
+) -> Option<((f32, f32), (f32, f32))> {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let (mut t0, mut t1) = (0.0f32, 1.0f32);
+    for (p, q) in [
+        (-dx, a.0 - x0),
+        (dx, x1 - a.0),
+        (-dy, a.1 - y0),
+        (dy, y1 - a.1),
+    ] {
+        if p == 0.0 {
+            if q < 0.0 {
+                return None;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    (t0 <= t1).then(|| {
+        let at = |t: f32| (a.0 + t * dx, a.1 + t * dy);
+        (at(t0), at(t1))
+    })
+}
+
 /// Draw one pose into the box `(x0, y0, w, h)`: feet at the bottom margin,
-/// `scale` pixels per unit, horizontally centred on the hips.
-fn draw_pose(cv: &mut Canvas, pose: &Pose, (x0, y0, w, h): (f64, f64, f64, f64), scale: f64) {
+/// `scale` pixels per unit, horizontally centred on the hips. Nothing is
+/// drawn outside the box widened by `above` pixels at the top and 4 at the
+/// bottom (a figure sunk below the floor or thrown far above it is cut at
+/// its cell, not drawn over the next row).
+fn draw_pose(
+    cv: &mut Canvas,
+    pose: &Pose,
+    (x0, y0, w, h): (f64, f64, f64, f64),
+    scale: f64,
+    above: f64,
+) {
     let floor_y = y0 + h - 8.0;
     let cx = x0 + w / 2.0;
     let centre = pose[0];
@@ -46,12 +89,23 @@ fn draw_pose(cv: &mut Canvas, pose: &Pose, (x0, y0, w, h): (f64, f64, f64, f64),
         }
     }
     let pt = |p: [f64; 3]| f(cx + project(p, centre) * scale, floor_y - p[1] * scale);
+    // The box, less the lines' half width and the head's radius.
+    let cell = [x0 + 1.0, y0 - above + 1.0, x0 + w - 1.0, y0 + h + 3.0].map(|v| v as f32);
     for (j, parent) in JOINT_PARENTS.iter().enumerate() {
         if let Some(pj) = *parent {
-            cv.line(pt(pose[pj]), pt(pose[j]), bone_color(j), 2.0);
+            if let Some((a, b)) = clip_segment(pt(pose[pj]), pt(pose[j]), cell) {
+                cv.line(a, b, bone_color(j), 2.0);
+            }
         }
     }
-    cv.circle(pt(pose[12]), 3.0, bone_color(12), 1.2);
+    let head = pt(pose[12]);
+    if head.0 >= cell[0] + 3.0
+        && head.0 <= cell[2] - 3.0
+        && head.1 >= cell[1] + 3.0
+        && head.1 <= cell[3] - 3.0
+    {
+        cv.circle(head, 3.0, bone_color(12), 1.2);
+    }
 }
 
 /// Pixels per unit so a 40-unit (about 2.3 m) column fits a box `h` high.
@@ -156,7 +210,13 @@ pub fn contact_sheet(path: &Path, motions: &[Motion], columns: usize) -> Result<
                 10.0,
                 TIME,
             );
-            draw_pose(&mut cv, &m.poses[t], (x0, by + 10.0, pw, ph), scale_for(ph));
+            draw_pose(
+                &mut cv,
+                &m.poses[t],
+                (x0, by + 10.0, pw, ph),
+                scale_for(ph),
+                10.0,
+            );
         }
     }
     save_png(&cv, path)
@@ -173,7 +233,7 @@ pub fn animation(path: &Path, motions: &[&Motion]) -> Result<(), RenderError> {
             let x0 = k as f64 * pw;
             cv.text((x0 as i32 + 4, 2), &m.id, 11.0, LABEL);
             if let Some(pose) = m.poses.get(f).or(m.poses.last()) {
-                draw_pose(&mut cv, pose, (x0, 14.0, pw, ph), scale_for(ph));
+                draw_pose(&mut cv, pose, (x0, 14.0, pw, ph), scale_for(ph), 14.0);
             }
         }
         cv.text((4, ph as i32 - 1), &f.to_string(), 11.0, [150, 150, 150]);
@@ -218,6 +278,60 @@ mod tests {
             id: id.into(),
             poses: (0..frames).map(|f| standing(f as f64 * 0.5)).collect(),
         }
+    }
+
+    #[test]
+    fn segments_are_clipped_to_the_cell() {
+        let r = [0.0, 0.0, 10.0, 10.0];
+        // Inside: unchanged; outside: nothing.
+        assert_eq!(
+            clip_segment((1.0, 1.0), (9.0, 5.0), r),
+            Some(((1.0, 1.0), (9.0, 5.0)))
+        );
+        assert_eq!(clip_segment((1.0, 12.0), (9.0, 15.0), r), None);
+        assert_eq!(clip_segment((-5.0, -1.0), (-1.0, 20.0), r), None);
+        // Crossing the bottom edge at y = 10: x = 2 + (10 − 6) / 8 · 4 = 4.
+        assert_eq!(
+            clip_segment((2.0, 6.0), (6.0, 14.0), r),
+            Some(((2.0, 6.0), (4.0, 10.0)))
+        );
+        // Through both sides.
+        assert_eq!(
+            clip_segment((-10.0, 5.0), (20.0, 5.0), r),
+            Some(((0.0, 5.0), (10.0, 5.0)))
+        );
+    }
+
+    #[test]
+    fn a_figure_below_the_floor_stays_in_its_row() {
+        let tmp = tempfile::tempdir().unwrap();
+        let p = tmp.path().join("sheet.png");
+        // Row 1: a figure 25 units under the floor; row 2: nothing drawn
+        // (a motion with no frames).
+        let sunk = Motion {
+            id: "sunk".into(),
+            poses: vec![standing(0.0).map(|[x, y, z]| [x, y - 25.0, z]); 5],
+        };
+        let mut motions = vec![sunk; 4];
+        motions.push(Motion {
+            id: String::new(),
+            poses: Vec::new(),
+        });
+        contact_sheet(&p, &motions, 5).unwrap();
+        let (w, h, px) = read_png(&p);
+        let block_h = CELL_HEIGHT + 14;
+        let ink_rows = (26 + block_h..h)
+            .filter(|&y| (0..w).any(|x| px[((y * w + x) * 3) as usize] < 200))
+            .count();
+        assert_eq!(
+            ink_rows, 0,
+            "the sunk figures were drawn into the second row"
+        );
+        // They are drawn, cut at their cell.
+        let ink_first = (26..26 + block_h)
+            .filter(|&y| (0..w).any(|x| px[((y * w + x) * 3) as usize] < 120))
+            .count();
+        assert!(ink_first > 20);
     }
 
     #[test]
