@@ -101,13 +101,14 @@ enum Command {
 }
 
 fn main() -> Result<()> {
-    // Training parallelises over shards of the batch (rayon). candle 0.11's
-    // own element-wise thread pool busy-waits between its parallel ops and
-    // takes the cores from the shards (0.87 s against 0.39 s a step at
-    // batch 1,600 here), so it gets one thread unless the user says
-    // otherwise. Set before any candle op, while this is the only thread.
-    if std::env::var_os("CANDLE_NUM_THREADS").is_none() {
-        std::env::set_var("CANDLE_NUM_THREADS", "1");
+    // Set while this is the only thread, unless the user set them: candle
+    // 0.11's element-wise pool busy-waits and takes the cores from training's
+    // shards (0.87 s against 0.39 s a step at batch 1,600), so one thread;
+    // errors are for users, so no backtrace under them (panics keep theirs).
+    for (var, value) in [("CANDLE_NUM_THREADS", "1"), ("RUST_LIB_BACKTRACE", "0")] {
+        if std::env::var_os(var).is_none() {
+            std::env::set_var(var, value);
+        }
     }
     motion_vrnn::train::keep_freed_memory();
     match Cli::parse().command {
