@@ -550,8 +550,7 @@ impl Bias {
 /// `x` plus the bias where there is one.
 fn plus(x: Tensor, bias: Option<&Tensor>) -> Result<Tensor> {
     match bias {
-        Some(b) if x.rank() == 3 && b.rank() == 3 => add_rows(&x, b, Act::None),
-        Some(b) => x.broadcast_add(b),
+        Some(b) => add_rows(&x, b, Act::None),
         None => Ok(x),
     }
 }
@@ -753,15 +752,11 @@ impl Vrnn {
     fn decode_raw(&self, z: &Tensor, h: &Tensor, bias: Option<&Bias>) -> Result<Tensor> {
         let u = Tensor::cat(&[z, h], D::Minus1)?;
         let a = match bias {
-            Some(b) if u.rank() == 3 && b.decoder.rank() == 3 => add_rows(
+            Some(b) => add_rows(
                 &self.decoder[0].forward(&u, Act::None)?,
                 &b.decoder,
                 Act::Relu,
             )?,
-            Some(b) => self.decoder[0]
-                .forward(&u, Act::None)?
-                .broadcast_add(&b.decoder)?
-                .relu()?,
             None => self.decoder[0].forward(&u, Act::Relu)?,
         };
         let b = self.decoder[1].forward(&a, Act::Relu)?;

@@ -159,6 +159,13 @@ fn add_rows_block() {
             assert_eq!(values(&fwd()), values(&blocks::reference(fwd)));
         }
     }
+    // One step (`[B, n]`, as sampling runs): the same as the sequence form.
+    let (y2, r2) = (randn(14, &[3, 6], 1.0), randn(15, &[1, 6], 0.5));
+    for act in [Act::None, Act::Relu] {
+        let one = || blocks::add_rows(y2.as_tensor(), r2.as_tensor(), act).unwrap();
+        assert_eq!(one().dims(), [3, 6]);
+        assert_eq!(values(&one()), values(&blocks::reference(one)));
+    }
     assert!(blocks::add_rows(
         y.as_tensor(),
         &Tensor::zeros((2, 1, 6), candle_core::DType::F32, &Device::Cpu).unwrap(),

@@ -235,9 +235,13 @@ impl CustomOp2 for SquaredError {
 }
 
 /// `act(y + r)` with one row `r` per sequence: `y: [B, T, n]`, `r: [B, 1, n]`
-/// or `[1, 1, n]` (a condition's bias, added to every frame). One pass where
-/// candle's `broadcast_add` and `relu` take two forward and five backward.
+/// or `[1, 1, n]` (a condition's bias, added to every frame); or one step,
+/// `y: [B, n]` and `r: [B, n]` or `[1, n]`. One pass where candle's
+/// `broadcast_add` and `relu` take two forward and five backward.
 pub fn add_rows(y: &Tensor, r: &Tensor, act: Act) -> Result<Tensor> {
+    if y.rank() == 2 && r.rank() == 2 {
+        return add_rows(&y.unsqueeze(1)?, &r.unsqueeze(1)?, act)?.squeeze(1);
+    }
     let (b, _, n) = y.dims3()?;
     let (rb, one, rn) = r.dims3()?;
     if one != 1 || rn != n || (rb != b && rb != 1) {
