@@ -89,7 +89,8 @@ fn draw_pose(
         }
     }
     let pt = |p: [f64; 3]| f(cx + project(p, centre) * scale, floor_y - p[1] * scale);
-    // The box, less the lines' half width and the head's radius.
+    // The box, less the lines' half width; the head also keeps its radius
+    // inside it.
     let cell = [x0 + 1.0, y0 - above + 1.0, x0 + w - 1.0, y0 + h + 3.0].map(|v| v as f32);
     for (j, parent) in JOINT_PARENTS.iter().enumerate() {
         if let Some(pj) = *parent {

@@ -55,16 +55,17 @@ fn bench_config(name: &str) -> Option<Config> {
 }
 
 /// Condition weights for `b` windows of a conditioned model (None
-/// otherwise): window `k` asks for category row `1 + k % n`, every tenth for
-/// none.
+/// otherwise): window `k` asks for category row `1 + k % n`, one window in
+/// `1 / CONDITION_DROPOUT` (every tenth) for none.
 fn bench_condition(
     model: &Config,
     b: usize,
     device: &Device,
 ) -> candle_core::Result<Option<Tensor>> {
     let n = model.categories.len();
+    let period = (1.0 / crate::train::CONDITION_DROPOUT).round() as usize;
     let rows: Vec<Option<usize>> = (0..b)
-        .map(|k| (k % 10 != 9).then_some(1 + k % n.max(1)))
+        .map(|k| (k % period != period - 1).then_some(1 + k % n.max(1)))
         .collect();
     model.condition(&rows, 1.0, device)
 }
