@@ -91,9 +91,9 @@ pub struct TrainArgs {
     /// the first and the last; 1: one window).
     #[arg(long)]
     pub judge_stretches: Option<usize>,
-    /// `category` (the `standard` preset's): condition the model on each
-    /// window's category, so `sample --category walk` can ask for one;
-    /// `none`: unconditioned (the `quick` and `paper` presets').
+    /// `category` (the `standard` preset's): condition on each window's
+    /// category, so `sample --category walk` can ask for one; `category+pace`:
+    /// and on its pace; `none`: neither (the `quick` and `paper` presets').
     #[arg(long)]
     pub condition: Option<ConditionOn>,
     /// Share of windows trained without their category (--condition category).

@@ -763,3 +763,48 @@ fn a_conditioned_run_samples_the_category_asked_for() {
         "one row per category: {h} vs {h1}"
     );
 }
+
+/// `train --condition category+pace` records the pace part; such a run
+/// samples, is evaluated and continues a clip through the same commands.
+#[test]
+fn a_paced_run_samples_evaluates_and_continues() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    small_dataset(&six_takes(tmp.path()), &ds);
+    let run = tmp.path().join("paced");
+    train(&ds, &run, &["--condition", "category+pace"]);
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("best/checkpoint.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["config"]["model"]["parts"]["pace"], true);
+    let ok = |args: &[&str], out: &str| {
+        let o = xtask()
+            .args(args)
+            .arg("--run")
+            .arg(&run)
+            .arg("--out")
+            .arg(tmp.path().join(out))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    ok(
+        &["sample", "--n", "2", "--frames", "20", "--split", "val"],
+        "s",
+    );
+    ok(&["eval", "--horizon", "0", "--split", "val"], "e");
+    let clip = extract(
+        "cmu-bvh-sample.zip",
+        "cmu-bvh-motionbuilder/02/02_01.bvh",
+        &tmp.path().join("in"),
+    );
+    let clip = clip.to_str().unwrap();
+    ok(&["continue", "--seconds", "1", "--input", clip], "c.bvh");
+    let e = xtask()
+        .args(["train", "--condition", "pace"])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&e.stderr);
+    assert!(e.contains("category+pace"), "{e}");
+}

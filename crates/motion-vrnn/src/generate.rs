@@ -180,7 +180,11 @@ pub fn continue_windows_with(
         .filter(|&l| l > 0 && frames > l + 1)
         .unwrap_or(frames - 1);
     let mut out: Vec<Vec<f32>> = vec![Vec::with_capacity(frames * f); n];
-    let mut context = starts.batch(picks, device)?.narrow(1, 0, k)?;
+    let whole = starts.batch(picks, device)?;
+    // A model with the pace part is asked for each window's own pace, as
+    // it was trained (the whole window's, not its context's).
+    let cond = model.config().paced(cond.as_ref(), Some(&whole))?;
+    let mut context = whole.narrow(1, 0, k)?;
     let mut made = 0;
     for run in 0u64.. {
         // New frames of this run; the first run also gives the start frame

@@ -141,6 +141,29 @@ pub struct Parts {
     /// longer pulls the root back. Training and the ELBO do not use it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_sharpness: Option<f64>,
+    /// The pace: a conditioned model also reads, at every step, the mean
+    /// of [`PACE_FEATURES`] over the sequence ([`pace`]), so a rollout is
+    /// told the height, speed and turning to keep. Training reads each
+    /// whole window's; generation from windows asks for the whole window's
+    /// too ([`crate::generate::continue_windows_with`]), from a clip
+    /// (`continue`) for its context's ([`Config::paced`]). Needs
+    /// [`Config::categories`].
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub pace: bool,
+}
+
+/// The normalised features whose means make the pace ([`Parts::pace`]):
+/// `root_y`, `vel_x`, `vel_z`, `ang_vel_y`.
+pub const PACE_FEATURES: [usize; 4] = [0, 55, 56, 57];
+
+/// The pace of sequences `x: [B, T, ≥ 58]` (normalised features): the mean
+/// over the frames of each of [`PACE_FEATURES`], `[B, 4]`.
+pub fn pace(x: &Tensor) -> Result<Tensor> {
+    let columns = PACE_FEATURES
+        .iter()
+        .map(|&f| x.narrow(2, f, 1))
+        .collect::<Result<Vec<_>>>()?;
+    Tensor::cat(&columns, 2)?.mean(1)
 }
 
 impl Parts {
@@ -265,6 +288,39 @@ impl Config {
             parts,
             ..Config::default()
         })
+    }
+
+    /// Columns of the condition weights after the categories': the pace's
+    /// ([`Parts::pace`]), or none.
+    pub fn pace_columns(&self) -> usize {
+        if self.parts.pace {
+            PACE_FEATURES.len()
+        } else {
+            0
+        }
+    }
+
+    /// `cond` with the pace of `x: [B, T, input]` ([`Parts::pace`]) as its
+    /// last columns, weighed like the category (`1 −` the weight of row 0:
+    /// zero where no category is asked, `guidance` where one is); `cond`
+    /// as it is without the pace part or where it has its pace already
+    /// (generation asks for a window's own, [`crate::generate`]). Without
+    /// frames (`x` None or empty) the pace is 0, the training set's mean.
+    pub fn paced(&self, cond: Option<&Tensor>, x: Option<&Tensor>) -> Result<Option<Tensor>> {
+        let n = self.categories.len() + 1;
+        let Some(cond) = cond.filter(|c| self.parts.pace && c.dim(1).is_ok_and(|w| w == n)) else {
+            return Ok(cond.cloned());
+        };
+        let pace = match x {
+            Some(x) if x.dim(1)? > 0 => pace(x)?,
+            _ => Tensor::zeros(
+                (cond.dim(0)?, PACE_FEATURES.len()),
+                DType::F32,
+                cond.device(),
+            )?,
+        };
+        let asked = cond.narrow(1, 0, 1)?.affine(-1.0, 1.0)?;
+        Tensor::cat(&[cond, &pace.broadcast_mul(&asked)?], 1).map(Some)
     }
 
     /// Condition weights `[B, categories + 1]` for sequences asking for
@@ -587,6 +643,11 @@ impl Vrnn {
         if !(0.0..=1.0).contains(&c.parts.self_feed) {
             candle_core::bail!("self_feed must be in [0, 1], got {}", c.parts.self_feed);
         }
+        if c.parts.pace && (c.categories.is_empty() || c.input <= PACE_FEATURES[3]) {
+            candle_core::bail!(
+                "the pace part needs a model conditioned on the category and the 58 features"
+            );
+        }
         positive("kl_weight", c.parts.kl_weight)?;
         positive("temperature", c.parts.temperature)?;
         if c.parts.rounds() == 0 {
@@ -620,7 +681,7 @@ impl Vrnn {
             cond: match c.categories.len() {
                 0 => None,
                 n => Some(vb.get_with_hints(
-                    (n + 1, 4 * c.latent + h4 + d1),
+                    (n + 1 + c.pace_columns(), 4 * c.latent + h4 + d1),
                     COND_WEIGHT,
                     candle_nn::Init::Const(0.0),
                 )?),
@@ -976,7 +1037,11 @@ impl MotionModel for Vrnn {
         let eps = eps.transpose(0, 1)?.contiguous()?;
         let lengths = self.window_bones(x)?;
         let feat = self.features(x)?;
-        let bias = self.bias(cond)?.map(|b| b.over_time()).transpose()?;
+        let cond = self.config.paced(cond, Some(x))?;
+        let bias = self
+            .bias(cond.as_ref())?
+            .map(|b| b.over_time())
+            .transpose()?;
         let bias = bias.as_ref();
         let fed = match feed {
             Some(mask) => {
@@ -1012,7 +1077,11 @@ impl MotionModel for Vrnn {
     fn reconstruct(&self, x: &Tensor, cond: Option<&Tensor>) -> Result<Tensor> {
         let (b, t, _) = x.dims3()?;
         let zero = Tensor::zeros((b, t, self.config.latent), DType::F32, x.device())?;
-        let bias = self.bias(cond)?.map(|b| b.over_time()).transpose()?;
+        let cond = self.config.paced(cond, Some(x))?;
+        let bias = self
+            .bias(cond.as_ref())?
+            .map(|b| b.over_time())
+            .transpose()?;
         // With ε = 0 the posterior sample is its mean.
         let s = self.scan(&self.features(x)?, None, &zero, bias.as_ref())?;
         let lengths = self.window_bones(x)?;
@@ -1028,7 +1097,8 @@ impl MotionModel for Vrnn {
         let c = &self.config;
         let (t, b, _) = eps.dims3()?;
         let dev = eps.device();
-        let bias = self.bias(cond)?;
+        let cond = self.config.paced(cond, start)?;
+        let bias = self.bias(cond.as_ref())?;
         let bias = bias.as_ref();
         // The condition's share of the posterior and of the gates.
         let (enc_bias, gates_bias) = match bias {

@@ -46,6 +46,9 @@ pub enum ConditionOn {
     None,
     /// Each window's category ([`crate::train::Conditioning`]).
     Category,
+    /// The category and the pace of each window's start
+    /// ([`crate::model::Parts::pace`]).
+    CategoryPace,
 }
 
 impl std::str::FromStr for ConditionOn {
@@ -54,8 +57,9 @@ impl std::str::FromStr for ConditionOn {
         match s {
             "none" => Ok(ConditionOn::None),
             "category" => Ok(ConditionOn::Category),
+            "category+pace" => Ok(ConditionOn::CategoryPace),
             _ => Err(format!(
-                "unknown condition {s:?}; choose `category` or `none`"
+                "unknown condition {s:?}; choose `category`, `category+pace` or `none`"
             )),
         }
     }
@@ -187,11 +191,15 @@ impl Overrides {
             cfg.judge_stretches = (v > 1).then_some(v);
         }
         match self.condition {
-            Some(ConditionOn::None) => cfg.condition = None,
-            Some(ConditionOn::Category) => {
+            Some(ConditionOn::None) => {
+                cfg.condition = None;
+                cfg.model.parts.pace = false;
+            }
+            Some(on) => {
                 cfg.condition = Some(crate::train::Conditioning {
                     dropout: crate::train::CONDITION_DROPOUT,
-                })
+                });
+                cfg.model.parts.pace = on == ConditionOn::CategoryPace;
             }
             None => {}
         }

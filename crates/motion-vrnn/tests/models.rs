@@ -676,3 +676,71 @@ fn asking_names_what_can_be_asked() {
     let w = Tensor::new(&[[0f32, 1.0]], &Device::Cpu).unwrap();
     assert!(plain.model.sample(&e, None, Some(&w)).is_err());
 }
+
+#[test]
+fn the_pace_is_four_means_read_where_a_category_is_asked() {
+    // `pace`: per sequence, the mean over its frames of root_y, vel_x,
+    // vel_z and ang_vel_y (features 0, 55, 56, 57).
+    let mut v = vec![0f32; 2 * 3 * 58];
+    for (k, f) in [0, 55, 56, 57, 1, 54].into_iter().enumerate() {
+        for t in 0..3 {
+            v[t * 58 + f] = (k + 1) as f32 * t as f32; // 0, k+1, 2(k+1): mean k+1
+            v[(3 + t) * 58 + f] = -2.0;
+        }
+    }
+    let x = Tensor::from_vec(v, (2, 3, 58), &Device::Cpu).unwrap();
+    let p = flat(&motion_vrnn::model::pace(&x).unwrap());
+    assert_eq!(p, vec![1.0, 2.0, 3.0, 4.0, -2.0, -2.0, -2.0, -2.0]);
+
+    // The table gains a row per pace feature, zero at the start.
+    let mut c = conditioned("motion", true).model.config().clone();
+    c.parts.pace = true;
+    let m = init_model(&c, 4, &Device::Cpu).unwrap();
+    assert_eq!(table(&m).dims()[0], CATEGORIES.len() + 1 + 4);
+    randomise(&m);
+    // The same model without the pace, its table the first rows of `m`'s.
+    let plain = conditioned("motion", true);
+    let rows = table(&m).as_tensor().narrow(0, 0, CATEGORIES.len() + 1);
+    table(&plain).set(&rows.unwrap()).unwrap();
+
+    let (x, eps) = batch(3, 6, 5);
+    let start = x.narrow(1, 0, 2).unwrap();
+    let e = noise(1, 2, 9, 3, 8, &Device::Cpu).unwrap();
+    let sample =
+        |t: &Trained, c: Option<&Tensor>| flat(&t.model.sample(&e, Some(&start), c).unwrap());
+    let loss = |t: &Trained, c: Option<&Tensor>| {
+        let l = t.model.losses(&x, &eps, None, c).unwrap();
+        (flat(&l.recon), flat(&l.kl))
+    };
+    let (none, walk) = (ask(&m, &[None; 3], 1.0), ask(&m, &[Some(1); 3], 1.0));
+    // No category asked: the pace is not read.
+    assert_eq!(sample(&m, Some(&none)), sample(&plain, Some(&none)));
+    assert_eq!(sample(&m, None), sample(&plain, None));
+    assert_eq!(loss(&m, Some(&none)), loss(&plain, Some(&none)));
+    // A category asked: it is, in training and in generation.
+    assert_ne!(sample(&m, Some(&walk)), sample(&plain, Some(&walk)));
+    assert_ne!(loss(&m, Some(&walk)), loss(&plain, Some(&walk)));
+    // Generation without start frames asks for the mean pace (0).
+    let f = |t: &Trained| flat(&t.model.sample(&e, None, Some(&walk)).unwrap());
+    assert_eq!(f(&m), f(&plain));
+    // Weights that carry their pace already are kept as they are (how
+    // generation asks for a window's own pace).
+    let asked = m
+        .model
+        .config()
+        .paced(Some(&walk), Some(&x))
+        .unwrap()
+        .unwrap();
+    assert_eq!(asked.dims(), [3, CATEGORIES.len() + 1 + 4]);
+    let again = m.model.config().paced(Some(&asked), None).unwrap().unwrap();
+    assert_eq!(flat(&again), flat(&asked));
+    let whole = |c: &Tensor| flat(&m.model.sample(&e, Some(&start), Some(c)).unwrap());
+    assert_ne!(whole(&asked), sample(&m, Some(&walk)));
+    // With its pace rows at zero the model is the one without the pace.
+    let t = table(&m);
+    let kept = t.as_tensor().narrow(0, 0, CATEGORIES.len() + 1).unwrap();
+    let zero = Tensor::zeros((4, t.dims()[1]), candle_core::DType::F32, &Device::Cpu).unwrap();
+    t.set(&Tensor::cat(&[&kept, &zero], 0).unwrap()).unwrap();
+    assert_eq!(sample(&m, Some(&walk)), sample(&plain, Some(&walk)));
+    assert_eq!(loss(&m, Some(&walk)), loss(&plain, Some(&walk)));
+}
