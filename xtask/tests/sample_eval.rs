@@ -635,6 +635,20 @@ fn eval_measures_generated_motion_with_the_classifier() {
     assert_eq!(eval(&tmp.path().join("e2")), text);
 }
 
+/// A run trained on the small dataset with `--condition condition` under
+/// `dir`: the dataset, the run and its `best` checkpoint's metadata.
+fn conditioned_run(
+    dir: &Path,
+    condition: &str,
+) -> (std::path::PathBuf, std::path::PathBuf, serde_json::Value) {
+    let ds = dir.join("ds");
+    small_dataset(&six_takes(dir), &ds);
+    let run = dir.join("cond");
+    train(&ds, &run, &["--condition", condition]);
+    let meta = std::fs::read_to_string(run.join("best/checkpoint.json")).unwrap();
+    (ds, run, serde_json::from_str(&meta).unwrap())
+}
+
 /// `train --condition category` records the categories of its training
 /// windows; `sample --category` asks for one of them; an unknown name, a
 /// category the model has not seen and an unconditioned run each say what
@@ -643,13 +657,7 @@ fn eval_measures_generated_motion_with_the_classifier() {
 fn a_conditioned_run_samples_the_category_asked_for() {
     integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
-    let ds = tmp.path().join("ds");
-    small_dataset(&six_takes(tmp.path()), &ds);
-    let run = tmp.path().join("cond");
-    train(&ds, &run, &["--condition", "category"]);
-    let meta: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("best/checkpoint.json")).unwrap())
-            .unwrap();
+    let (ds, run, meta) = conditioned_run(tmp.path(), "category");
     let known: Vec<String> = meta["config"]["model"]["categories"]
         .as_array()
         .unwrap()
@@ -770,13 +778,7 @@ fn a_conditioned_run_samples_the_category_asked_for() {
 fn a_paced_run_samples_evaluates_and_continues() {
     integration_tests::require_samples!();
     let tmp = tempfile::tempdir().unwrap();
-    let ds = tmp.path().join("ds");
-    small_dataset(&six_takes(tmp.path()), &ds);
-    let run = tmp.path().join("paced");
-    train(&ds, &run, &["--condition", "category+pace"]);
-    let meta: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("best/checkpoint.json")).unwrap())
-            .unwrap();
+    let (_, run, meta) = conditioned_run(tmp.path(), "category+pace");
     assert_eq!(meta["config"]["model"]["parts"]["pace"], true);
     let ok = |args: &[&str], out: &str| {
         let o = xtask()
