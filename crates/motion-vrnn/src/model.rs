@@ -643,7 +643,8 @@ impl Vrnn {
         if !(0.0..=1.0).contains(&c.parts.self_feed) {
             candle_core::bail!("self_feed must be in [0, 1], got {}", c.parts.self_feed);
         }
-        if c.parts.pace && (c.categories.is_empty() || c.input <= PACE_FEATURES[3]) {
+        if c.parts.pace && (c.categories.is_empty() || PACE_FEATURES.iter().any(|&f| f >= c.input))
+        {
             candle_core::bail!(
                 "the pace part needs a model conditioned on the category and the 58 features"
             );
@@ -690,9 +691,12 @@ impl Vrnn {
     }
 
     /// The condition's bias rows for `cond` ([`Config::condition`]; None: row
-    /// 0, "no category"), or None for an unconditioned model.
-    fn bias(&self, cond: Option<&Tensor>) -> Result<Option<Bias>> {
+    /// 0, "no category"), with the pace of `frames` where the model reads
+    /// one ([`Config::paced`]), or None for an unconditioned model.
+    fn bias(&self, cond: Option<&Tensor>, frames: Option<&Tensor>) -> Result<Option<Bias>> {
         let c = &self.config;
+        let cond = c.paced(cond, frames)?;
+        let cond = cond.as_ref();
         let Some(table) = &self.cond else {
             if cond.is_some() {
                 candle_core::bail!("this model was trained without categories; train one with --condition category");
@@ -1037,9 +1041,8 @@ impl MotionModel for Vrnn {
         let eps = eps.transpose(0, 1)?.contiguous()?;
         let lengths = self.window_bones(x)?;
         let feat = self.features(x)?;
-        let cond = self.config.paced(cond, Some(x))?;
         let bias = self
-            .bias(cond.as_ref())?
+            .bias(cond, Some(x))?
             .map(|b| b.over_time())
             .transpose()?;
         let bias = bias.as_ref();
@@ -1077,9 +1080,8 @@ impl MotionModel for Vrnn {
     fn reconstruct(&self, x: &Tensor, cond: Option<&Tensor>) -> Result<Tensor> {
         let (b, t, _) = x.dims3()?;
         let zero = Tensor::zeros((b, t, self.config.latent), DType::F32, x.device())?;
-        let cond = self.config.paced(cond, Some(x))?;
         let bias = self
-            .bias(cond.as_ref())?
+            .bias(cond, Some(x))?
             .map(|b| b.over_time())
             .transpose()?;
         // With ε = 0 the posterior sample is its mean.
@@ -1097,8 +1099,7 @@ impl MotionModel for Vrnn {
         let c = &self.config;
         let (t, b, _) = eps.dims3()?;
         let dev = eps.device();
-        let cond = self.config.paced(cond, start)?;
-        let bias = self.bias(cond.as_ref())?;
+        let bias = self.bias(cond, start)?;
         let bias = bias.as_ref();
         // The condition's share of the posterior and of the gates.
         let (enc_bias, gates_bias) = match bias {

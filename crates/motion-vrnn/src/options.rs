@@ -46,7 +46,7 @@ pub enum ConditionOn {
     None,
     /// Each window's category ([`crate::train::Conditioning`]).
     Category,
-    /// The category and the pace of each window's start
+    /// The category and the pace of each window
     /// ([`crate::model::Parts::pace`]).
     CategoryPace,
 }
