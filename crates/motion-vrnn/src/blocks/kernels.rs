@@ -104,6 +104,252 @@ pub(crate) fn mm(
     }
 }
 
+/// A right-hand side of [`mm`] copied once into one row-major `k × n`
+/// block, for [`mm_small`]: the recurrence multiplies by the same weights
+/// at every step, and `gemm` packed them again at every call.
+pub(crate) struct Packed {
+    k: usize,
+    n: usize,
+    v: Vec<f32>,
+}
+
+impl Packed {
+    /// The `k × n` matrix `b` seen through `bv`.
+    pub(crate) fn new(b: &[f32], bv: V, k: usize, n: usize) -> Packed {
+        let mut v = Vec::with_capacity(k * n);
+        for r in 0..k {
+            v.extend((0..n).map(|q| b[bv.off + r * bv.rs + q * bv.cs]));
+        }
+        Packed { k, n, v }
+    }
+}
+
+/// Whether `gemm` runs a product of these sizes and strides through its
+/// general kernels, which sum each element as one fused multiply-add chain
+/// over the inner dimension in order, from zero, then add it to the
+/// destination. Its other routes (`k ≤ 2`, a single row or column, and
+/// `m·n ≤ 256` with unit-stride rows of `a` and columns of `b`, which sum
+/// in vector lanes first) give other bits, so [`mm_small`] leaves them to it.
+fn general_route((m, n, k): (usize, usize, usize), av: V, bv: V) -> bool {
+    k > 2 && k <= K_BLOCK && m > 1 && n > 1 && !(m * n <= 256 && av.cs == 1 && bv.rs == 1)
+}
+
+/// [`mm`] for the recurrence's small per-step products, with `b` also
+/// given [`Packed`]: the same bits as `mm` (each element the same chain of
+/// fused multiply-adds, in order), without `gemm`'s packing and dispatch at
+/// every call. Runs [`fma_rows`] where `gemm` would run its FMA kernel on
+/// the same route ([`general_route`]) and the rows of `a` and `c` are
+/// contiguous; `mm` everywhere else.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn mm_small(
+    (m, n, k): (usize, usize, usize),
+    c: &mut [f32],
+    cv: V,
+    acc: bool,
+    a: &[f32],
+    av: V,
+    b: &[f32],
+    bv: V,
+    packed: &Packed,
+) {
+    if fast_rows((m, n, k), av, bv, packed) && cv.cs == 1 {
+        let end = |v: V, r: usize, q: usize| v.off + (r - 1) * v.rs + q;
+        assert!(
+            end(cv, m, n) <= c.len(),
+            "mm_small: destination out of bounds"
+        );
+        assert!(end(av, m, k) <= a.len(), "mm_small: lhs out of bounds");
+        let start = if acc { Start::Dst } else { Start::Zero };
+        // SAFETY: `fast_rows` checked the CPU's features and `packed`'s
+        // size; the asserts keep every row of `a` and `c` inside the slices.
+        unsafe {
+            fma_rows(
+                (m, n, k),
+                c.as_mut_ptr().add(cv.off),
+                cv.rs,
+                a.as_ptr().add(av.off),
+                av.rs,
+                &packed.v,
+                start,
+            )
+        };
+        return;
+    }
+    mm((m, n, k), c, cv, acc, a, av, b, bv)
+}
+
+/// `start + a · b` over rows of `a: m × k` (row-major, contiguous) and
+/// `b` (seen through `bv`) packed `k × n`, into a new `m × n` buffer, never zero-filled nor
+/// read: the same bits as `mm` into a buffer holding `start` (the bias
+/// repeated in every row, or zeros). `None` where [`fast_rows`] does not
+/// hold (then use `mm`).
+pub(crate) fn mm_rows(
+    (m, n, k): (usize, usize, usize),
+    a: &[f32],
+    bv: V,
+    packed: &Packed,
+    bias: Option<&[f32]>,
+) -> Option<Vec<f32>> {
+    if !fast_rows((m, n, k), rm(0, k), bv, packed)
+        || a.len() < m * k
+        || bias.is_some_and(|b| b.len() != n)
+    {
+        return None;
+    }
+    let mut out = Vec::<f32>::with_capacity(m * n);
+    let start = bias.map_or(Start::Zero, Start::Bias);
+    // SAFETY: `fast_rows` checked the CPU's features and `packed`'s size;
+    // `a` holds `m` rows of `k` and `out` room for `m` rows of `n`, every
+    // element of which `fma_rows` writes before the length is set.
+    unsafe {
+        fma_rows(
+            (m, n, k),
+            out.as_mut_ptr(),
+            n,
+            a.as_ptr(),
+            k,
+            &packed.v,
+            start,
+        );
+        out.set_len(m * n);
+    }
+    Some(out)
+}
+
+/// Whether [`fma_rows`] gives `mm`'s bits for this product: a CPU with AVX2
+/// and FMA (where `gemm` runs its FMA kernels), `gemm`'s general route, and
+/// `packed` of the product's size.
+fn fast_rows((m, n, k): (usize, usize, usize), av: V, bv: V, packed: &Packed) -> bool {
+    has_avx2_fma()
+        && cfg!(target_arch = "x86_64")
+        && general_route((m, n, k), av, bv)
+        && (packed.k, packed.n) == (k, n)
+        && av.cs == 1
+}
+
+/// What an element of [`fma_rows`] starts from: its sum alone, the
+/// destination plus its sum, or the bias of its column plus its sum.
+#[derive(Clone, Copy)]
+enum Start<'a> {
+    Zero,
+    Dst,
+    Bias(&'a [f32]),
+}
+
+/// The kernel of [`mm_small`] and [`mm_rows`]: tiles of 4 rows by 16
+/// columns (then 8, then single columns), each element summed as `gemm`'s
+/// FMA kernel sums it: from zero, one fused multiply-add per step of the
+/// inner dimension in order, then added to its start.
+///
+/// # Safety
+/// The CPU has AVX2 and FMA; `a` points at `m` rows of `k` values `a_rs`
+/// apart, `c` at `m` rows of `n` writable values `c_rs` apart (readable
+/// too with [`Start::Dst`]), `b` holds `k × n` values and a bias `n`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn fma_rows(
+    (m, n, k): (usize, usize, usize),
+    c: *mut f32,
+    c_rs: usize,
+    a: *const f32,
+    a_rs: usize,
+    b: &[f32],
+    start: Start,
+) {
+    let bp = b.as_ptr();
+    let mut q = 0;
+    while q + 8 <= n {
+        let wide = n - q >= 16;
+        let mut r = 0;
+        while r < m {
+            let rows = if m - r >= 4 { 4 } else { 1 };
+            let (ct, at, bt) = (c.add(r * c_rs + q), a.add(r * a_rs), bp.add(q));
+            let st = match start {
+                Start::Bias(v) => Start::Bias(&v[q..]),
+                s => s,
+            };
+            match (rows, wide) {
+                (4, true) => tile::<4, 2>(k, at, a_rs, bt, n, ct, c_rs, st),
+                (4, false) => tile::<4, 1>(k, at, a_rs, bt, n, ct, c_rs, st),
+                (_, true) => tile::<1, 2>(k, at, a_rs, bt, n, ct, c_rs, st),
+                (_, false) => tile::<1, 1>(k, at, a_rs, bt, n, ct, c_rs, st),
+            }
+            r += rows;
+        }
+        q += if wide { 16 } else { 8 };
+    }
+    for q in q..n {
+        for r in 0..m {
+            let mut sum = 0.0f32;
+            for i in 0..k {
+                sum = (*a.add(r * a_rs + i)).mul_add(*bp.add(i * n + q), sum);
+            }
+            let p = c.add(r * c_rs + q);
+            *p = match start {
+                Start::Zero => sum,
+                Start::Dst => *p + sum,
+                Start::Bias(v) => v[q] + sum,
+            };
+        }
+    }
+}
+
+/// Off x86-64 [`fast_rows`] never holds, so nothing calls this.
+#[cfg(not(target_arch = "x86_64"))]
+unsafe fn fma_rows(
+    _: (usize, usize, usize),
+    _: *mut f32,
+    _: usize,
+    _: *const f32,
+    _: usize,
+    _: &[f32],
+    _: Start,
+) {
+    unreachable!("fma_rows runs only where fast_rows holds (x86-64)")
+}
+
+/// `R` rows by `8·C` columns of [`fma_rows`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+#[inline]
+unsafe fn tile<const R: usize, const C: usize>(
+    k: usize,
+    a: *const f32,
+    a_rs: usize,
+    b: *const f32,
+    b_rs: usize,
+    c: *mut f32,
+    c_rs: usize,
+    start: Start,
+) {
+    use std::arch::x86_64::*;
+    let mut sum = [[_mm256_setzero_ps(); C]; R];
+    for i in 0..k {
+        let mut bv = [_mm256_setzero_ps(); C];
+        for (j, v) in bv.iter_mut().enumerate() {
+            *v = _mm256_loadu_ps(b.add(i * b_rs + 8 * j));
+        }
+        for (row, s) in sum.iter_mut().enumerate() {
+            let x = _mm256_set1_ps(*a.add(row * a_rs + i));
+            for (s, v) in s.iter_mut().zip(&bv) {
+                *s = _mm256_fmadd_ps(x, *v, *s);
+            }
+        }
+    }
+    for (row, s) in sum.iter().enumerate() {
+        for (j, s) in s.iter().enumerate() {
+            let p = c.add(row * c_rs + 8 * j);
+            let v = match start {
+                Start::Zero => *s,
+                Start::Dst => _mm256_add_ps(_mm256_loadu_ps(p), *s),
+                Start::Bias(v) => _mm256_add_ps(_mm256_loadu_ps(v.as_ptr().add(8 * j)), *s),
+            };
+            _mm256_storeu_ps(p, v);
+        }
+    }
+}
+
 /// Whether this CPU runs [`simd_fn!`]'s AVX2 + FMA instance.
 #[inline]
 pub(crate) fn has_avx2_fma() -> bool {
@@ -270,6 +516,89 @@ mod tests {
         assert_eq!(got.len(), want.len());
         for (i, (g, w)) in got.iter().zip(&want).enumerate() {
             assert_eq!(g.to_bits(), w.to_bits(), "element {i}: {g} against {w}");
+        }
+    }
+
+    /// `mm_small` gives `mm`'s bits for the recurrence's products (and the
+    /// shapes `gemm` routes elsewhere), accumulating or not, on strided rows.
+    #[test]
+    fn small_products_give_gemms_bits() {
+        let value = |i: usize, salt: usize| {
+            let x = (i * 2_654_435_761 + salt * 40_503) % 1_000_003;
+            (x as f32 / 1_000_003.0 - 0.5) * 3.0
+        };
+        // (m, n, k, b transposed): the scan's four products at 32 and at
+        // other shard sizes, and odd shapes.
+        let shapes = [
+            (32, 16, 32, true),
+            (32, 128, 40, true),
+            (32, 40, 128, false),
+            (32, 32, 16, false),
+            (5, 16, 32, true),
+            (2, 128, 40, true),
+            (7, 40, 128, false),
+            (9, 32, 16, false),
+            (1, 16, 32, true),
+            (33, 24, 3, true),
+            (6, 8, 2, false),
+            (17, 12, 5, true),
+            (4096, 60, 48, true),
+            (4096, 40, 32, false),
+            (101, 20, 33, true),
+        ];
+        for (m, n, k, trans) in shapes {
+            for acc in [false, true] {
+                // Rows of `a` and `c` a few values wider than used, offset.
+                let (a_rs, c_rs) = (k + 3, n + 5);
+                let a: Vec<f32> = (0..2 + m * a_rs).map(|i| value(i, 1)).collect();
+                let b: Vec<f32> = (0..k * n).map(|i| value(i, 2)).collect();
+                let bv = if trans { tr(0, k) } else { rm(0, n) };
+                let packed = Packed::new(&b, bv, k, n);
+                let c0: Vec<f32> = (0..1 + m * c_rs).map(|i| value(i, 3)).collect();
+                let (mut want, mut got) = (c0.clone(), c0);
+                let (av, cv) = (rm(2, a_rs), rm(1, c_rs));
+                mm((m, n, k), &mut want, cv, acc, &a, av, &b, bv);
+                mm_small((m, n, k), &mut got, cv, acc, &a, av, &b, bv, &packed);
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    assert_eq!(
+                        g.to_bits(),
+                        w.to_bits(),
+                        "{m}x{n}x{k} (acc {acc}) element {i}: {g} against {w}"
+                    );
+                }
+            }
+            // A dense layer's rows into a new buffer, from the bias or zero,
+            // against `mm` into the bias repeated (or zeros).
+            let a: Vec<f32> = (0..m * k).map(|i| value(i, 4)).collect();
+            let b: Vec<f32> = (0..k * n).map(|i| value(i, 5)).collect();
+            let bv = if trans { tr(0, k) } else { rm(0, n) };
+            let packed = Packed::new(&b, bv, k, n);
+            let bias: Vec<f32> = (0..n).map(|i| value(i, 6)).collect();
+            for start in [Some(&bias[..]), None] {
+                let mut want = match start {
+                    Some(v) => v.repeat(m),
+                    None => vec![0.0; m * n],
+                };
+                mm(
+                    (m, n, k),
+                    &mut want,
+                    rm(0, n),
+                    start.is_some(),
+                    &a,
+                    rm(0, k),
+                    &b,
+                    bv,
+                );
+                match mm_rows((m, n, k), &a, bv, &packed, start) {
+                    Some(got) => {
+                        assert!(has_avx2_fma() && general_route((m, n, k), rm(0, k), bv));
+                        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                            assert_eq!(g.to_bits(), w.to_bits(), "{m}x{n}x{k} rows, element {i}");
+                        }
+                    }
+                    None => assert!(!has_avx2_fma() || !general_route((m, n, k), rm(0, k), bv)),
+                }
+            }
         }
     }
 

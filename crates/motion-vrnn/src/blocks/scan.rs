@@ -15,7 +15,7 @@
 //! the state *before* the step (what the prior and the decoder read) and the
 //! posterior sample.
 
-use super::kernels::{dsigma, mm, rm, sigma, sigmoid, simd_fn, tanh, tr};
+use super::kernels::{dsigma, mm, mm_small, rm, sigma, sigmoid, simd_fn, tanh, tr, Packed};
 use super::{fused, slice, tensor, with_values};
 use candle_core::{CpuStorage, CustomOp3, Layout, Result, Shape, Tensor, D};
 use std::sync::Mutex;
@@ -230,6 +230,10 @@ fn forward(
     let (p, o, zh, z2, h4) = (op.dims.pre(), op.dims.out(), z + h, 2 * z, 4 * h);
     let n = b * tt;
     let wzh = pack_zh(w, op.dims);
+    let (pe, pg) = (
+        Packed::new(w, tr(0, h), h, z2),
+        Packed::new(&wzh, tr(0, zh), zh, h4),
+    );
     let mut u = vec![0.0f32; n * zh];
     let mut c = vec![0.0f32; n * h];
     let mut tc = vec![0.0f32; n * h];
@@ -247,7 +251,7 @@ fn forward(
         let base = t * b;
         if t > 0 {
             // e += h · W_eᵀ
-            mm(
+            mm_small(
                 (b, z2, h),
                 &mut e,
                 rm(base * z2, z2),
@@ -256,6 +260,7 @@ fn forward(
                 rm(base * zh + z, zh),
                 w,
                 tr(0, h),
+                &pe,
             );
         }
         for s in 0..b {
@@ -269,7 +274,7 @@ fn forward(
             }
         }
         // g += [z | h] · [W_z | W_h]ᵀ
-        mm(
+        mm_small(
             (b, h4, zh),
             &mut g,
             rm(base * h4, h4),
@@ -278,6 +283,7 @@ fn forward(
             rm(base * zh, zh),
             &wzh,
             tr(0, zh),
+            &pg,
         );
         for s in 0..b {
             let r = base + s;
@@ -334,6 +340,10 @@ fn backward(
     let (p, o, zh, z2, h4) = (op.dims.pre(), op.dims.out(), z + h, 2 * z, 4 * h);
     let n = b * tt;
     let wzh = pack_zh(w, op.dims);
+    let (pg, pe) = (
+        Packed::new(&wzh, rm(0, zh), h4, zh),
+        Packed::new(w, rm(0, h), z2, h),
+    );
     let Cache { u, e, g, c, tc } = cache;
     // dU holds, per row, d[z | h_{t−1}]; starts with the output's part.
     let mut du = vec![0.0f32; n * zh];
@@ -384,7 +394,7 @@ fn backward(
             }
         }
         // d[z | h] += dG · [W_z | W_h]
-        mm(
+        mm_small(
             (b, zh, h4),
             &mut du,
             rm(base * zh, zh),
@@ -393,6 +403,7 @@ fn backward(
             rm(base * h4, h4),
             &wzh,
             rm(0, zh),
+            &pg,
         );
         for s in 0..b {
             let (r, q) = (base + s, s * tt + t);
@@ -405,7 +416,7 @@ fn backward(
         }
         if t > 0 {
             // dh_{t−1} += dE · W_e
-            mm(
+            mm_small(
                 (b, h, z2),
                 &mut du,
                 rm(base * zh + z, zh),
@@ -414,6 +425,7 @@ fn backward(
                 rm(base * z2, z2),
                 w,
                 rm(0, h),
+                &pe,
             );
         }
     }
