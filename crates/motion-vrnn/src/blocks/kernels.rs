@@ -179,10 +179,10 @@ pub(crate) fn mm_small(
 }
 
 /// `start + a · b` over rows of `a: m × k` (row-major, contiguous) and
-/// `b` (seen through `bv`) packed `k × n`, into a new `m × n` buffer, never zero-filled nor
-/// read: the same bits as `mm` into a buffer holding `start` (the bias
-/// repeated in every row, or zeros). `None` where [`fast_rows`] does not
-/// hold (then use `mm`).
+/// `b` (seen through `bv`) packed `k × n`, into a new `m × n` buffer,
+/// neither zero-filled nor read: the same bits as `mm` into a buffer
+/// holding `start` (the bias repeated in every row, or zeros). `None` where
+/// [`fast_rows`] does not hold (then use `mm`).
 pub(crate) fn mm_rows(
     (m, n, k): (usize, usize, usize),
     a: &[f32],
