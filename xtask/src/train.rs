@@ -45,6 +45,9 @@ pub struct TrainArgs {
     /// std when generating, also for the checkpoint judge; 1: as trained).
     #[arg(long)]
     pub temperature: Option<f64>,
+    /// Feed back in training at that temperature, as sampling draws (docs/training.md).
+    #[arg(long)]
+    pub rollouts_at_temperature: bool,
     /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
     #[arg(long)]
     pub latent: Option<usize>,
@@ -185,6 +188,7 @@ impl TrainArgs {
             judge_stretches: self.judge_stretches,
             condition: self.condition,
             condition_dropout: self.condition_dropout,
+            rollouts_at_temperature: self.rollouts_at_temperature,
         }
     }
 }
@@ -270,11 +274,8 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     let script = crate::workspace_root().join("xtask/py/pytorch_vrnn_step.py");
     let py = a.pytorch.as_deref().map(|p| (p, script.as_path()));
     let device = motion_vrnn::model::default_device();
-    let mut print = |line: &str| println!("{line}");
-    let (models, batches) = (&a.models, &a.batch);
-    bench::report(
-        models, batches, a.steps, a.autograd, py, &device, &mut print,
-    )?;
+    let print = &mut |line: &str| println!("{line}");
+    bench::report(&a.models, &a.batch, a.steps, a.autograd, py, &device, print)?;
     Ok(())
 }
 
@@ -309,10 +310,8 @@ pub fn classifier(a: ClassifierArgs) -> Result<()> {
     };
     t.epochs = a.epochs.unwrap_or(t.epochs);
     let device = motion_vrnn::model::default_device();
-    print!(
-        "{}",
-        classifier::train_and_measure(&data, &a.out, &t, &device)?
-    );
+    let report = classifier::train_and_measure(&data, &a.out, &t, &device)?;
+    print!("{report}");
     Ok(())
 }
 

@@ -127,6 +127,11 @@ pub struct Parts {
     /// when generating (None: 1). Training and the ELBO do not use it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub temperature: Option<f64>,
+    /// The feed rounds draw the prior's latent at [`Parts::temperature`],
+    /// as sampling does, so training rolls out the motion generation will
+    /// make (false: at 1, the prior as trained; `--rollouts-at-temperature`).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub rollouts_at_temperature: bool,
     /// Generation in runs of at most this many new frames: after each, the
     /// recurrence restarts from a fresh state, reading the last frames made
     /// as its context, so it never runs far longer than the windows it was
@@ -977,14 +982,20 @@ impl Vrnn {
         let prior = stacked(&self.prior[0], &self.prior[1])?;
         let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
         // One round: the recurrence reads `fed` (the real frames when None).
+        // The prior's draws at the sampling temperature where asked
+        // ([`Parts::rollouts_at_temperature`]); the posterior's noise as is.
+        let e = match self.config.parts.temperature {
+            Some(tau) if self.config.parts.rollouts_at_temperature => (eps * tau)?,
+            _ => eps.clone(),
+        };
         let round = |fed: Option<&Tensor>| -> Result<Tensor> {
             let s = self.scan(feat, fed, eps, bias)?;
             let p = plus(prior.forward(&s.h, Act::None)?, bias.map(|b| &b.prior))?;
-            let z = draw(&p, eps, self.config.latent)?;
+            let z = draw(&p, &e, self.config.latent)?;
             let z = if t > 1 {
-                Tensor::cat(&[&eps.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
+                Tensor::cat(&[&e.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
             } else {
-                eps.clone()
+                e.clone()
             };
             let own = self.decode(&z, &s.h, lengths, bias)?.0.detach();
             x + ((own - x)? * &m)?

@@ -133,6 +133,8 @@ pub struct Overrides {
     /// Share of windows trained without their category (with
     /// `condition: Category`; default [`crate::train::CONDITION_DROPOUT`]).
     pub condition_dropout: Option<f64>,
+    /// Feed rounds drawn at the sampling temperature (`true`: on).
+    pub rollouts_at_temperature: bool,
 }
 
 impl Overrides {
@@ -159,6 +161,9 @@ impl Overrides {
         }
         if let Some(v) = self.temperature {
             parts.temperature = (v != 1.0).then_some(v);
+        }
+        if self.rollouts_at_temperature {
+            parts.rollouts_at_temperature = true;
         }
         if let Some(v) = self.latent {
             cfg.model.latent = v;

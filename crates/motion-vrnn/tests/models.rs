@@ -320,6 +320,38 @@ fn the_temperature_scales_the_prior_noise_only() {
     }
 }
 
+/// `rollouts_at_temperature`: the feed rounds draw the prior's latent at the
+/// model's temperature, so the fed-back frames and the losses move; with
+/// nothing fed back, or at temperature 1, the losses are the model's own,
+/// to the bit; off, nothing changes (the default models' bits).
+#[test]
+fn rollouts_at_the_temperature_scale_the_fed_back_draws() {
+    let base = model("motion", 7);
+    let mut c = base.model.config().clone();
+    assert!(c.parts.temperature.is_some_and(|t| t < 1.0));
+    assert!(!c.parts.rollouts_at_temperature);
+    c.parts.rollouts_at_temperature = true;
+    let hot = init_model(&c, 7, &Device::Cpu).unwrap();
+    let (x, eps) = batch(3, 8, 23);
+    let mask = feed(&base, &x);
+    assert!(mask.is_some());
+    let losses = |m: &Trained, f: Option<&Tensor>| {
+        let l = m.model.losses(&x, &eps, f, None).unwrap();
+        [&l.recon, &l.kl, &l.extra].map(|v| v.to_scalar::<f32>().unwrap())
+    };
+    assert_ne!(losses(&hot, mask.as_ref()), losses(&base, mask.as_ref()));
+    assert_eq!(losses(&hot, None), losses(&base, None));
+    c.parts.temperature = None;
+    let cold = init_model(&c, 7, &Device::Cpu).unwrap();
+    let mut plain = c.clone();
+    plain.parts.rollouts_at_temperature = false;
+    let plain = init_model(&plain, 7, &Device::Cpu).unwrap();
+    assert_eq!(losses(&cold, mask.as_ref()), losses(&plain, mask.as_ref()));
+    // Absent from a checkpoint's JSON, it is off.
+    let json = serde_json::to_string(base.model.config()).unwrap();
+    assert!(!json.contains("rollouts_at_temperature"));
+}
+
 /// The foot lock's sharpness changes generated frames only, and only in a
 /// model with the foot lock: 1 is the model as trained, bit for bit; 4
 /// moves the generated root; the losses ignore it; it must be positive.
