@@ -178,12 +178,43 @@ pub(crate) fn mm_small(
     mm((m, n, k), c, cv, acc, a, av, b, bv)
 }
 
-/// `start + a · b` over rows of `a: m × k` (row-major, contiguous) and
-/// `b` (seen through `bv`) packed `k × n`, into a new `m × n` buffer,
-/// neither zero-filled nor read: the same bits as `mm` into a buffer
-/// holding `start` (the bias repeated in every row, or zeros). `None` where
-/// [`fast_rows`] does not hold (then use `mm`).
+/// `bias + a · b` (or `a · b`) over rows of `a: m × k` (row-major,
+/// contiguous) and `b: k × n` seen through `bv`, into a new `m × n` buffer:
+/// the bits of `mm` into a buffer holding the bias in every row (or zeros),
+/// through [`fma_rows`] where it gives them (`b` packed once, the buffer
+/// neither filled nor read first), through `mm` elsewhere.
 pub(crate) fn mm_rows(
+    (m, n, k): (usize, usize, usize),
+    a: &[f32],
+    b: &[f32],
+    bv: V,
+    bias: Option<&[f32]>,
+) -> Vec<f32> {
+    if has_avx2_fma() && general_route((m, n, k), rm(0, k), bv) {
+        let packed = Packed::new(b, bv, k, n);
+        if let Some(y) = rows_fma((m, n, k), a, bv, &packed, bias) {
+            return y;
+        }
+    }
+    // The bias in every row (`repeat` copies in doubling blocks: one copy
+    // call per row cost 4 % of a `motion` step).
+    let mut y = bias.map_or_else(|| vec![0.0; m * n], |v| v.repeat(m));
+    mm(
+        (m, n, k),
+        &mut y,
+        rm(0, n),
+        bias.is_some(),
+        a,
+        rm(0, k),
+        b,
+        bv,
+    );
+    y
+}
+
+/// [`mm_rows`] through [`fma_rows`], with `b` already packed; `None` where
+/// [`fast_rows`] does not hold.
+fn rows_fma(
     (m, n, k): (usize, usize, usize),
     a: &[f32],
     bv: V,
@@ -589,7 +620,12 @@ mod tests {
                     &b,
                     bv,
                 );
-                match mm_rows((m, n, k), &a, bv, &packed, start) {
+                // Whichever route it takes, `mm_rows` gives `gemm`'s bits.
+                let rows = mm_rows((m, n, k), &a, &b, bv, start);
+                for (i, (g, w)) in rows.iter().zip(&want).enumerate() {
+                    assert_eq!(g.to_bits(), w.to_bits(), "{m}x{n}x{k} mm_rows, element {i}");
+                }
+                match rows_fma((m, n, k), &a, bv, &packed, start) {
                     Some(got) => {
                         assert!(has_avx2_fma() && general_route((m, n, k), rm(0, k), bv));
                         for (i, (g, w)) in got.iter().zip(&want).enumerate() {

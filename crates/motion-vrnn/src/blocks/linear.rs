@@ -1,6 +1,6 @@
 //! Dense layers over all rows at once, and the squared error.
 
-use super::kernels::{mm, mm_rows, rm, simd_fn, tr, Packed};
+use super::kernels::{mm, mm_rows, rm, simd_fn, tr};
 use super::{fused, slice, tensor, with_values};
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Result, Shape, Tensor, D};
 use serde::{Deserialize, Serialize};
@@ -73,26 +73,7 @@ impl CustomOp3 for LinearOp {
             slice(s3, l3, "b")?,
         );
         let (rows, inp, out) = sizes(l1.shape(), l2.shape(), l3.shape())?;
-        let packed = Packed::new(w, tr(0, inp), inp, out);
-        let mut y = match mm_rows((rows, out, inp), x, tr(0, inp), &packed, Some(b)) {
-            Some(y) => y,
-            None => {
-                // The bias in every row (`repeat` copies in doubling blocks:
-                // one copy call per row cost 4 % of a `motion` step).
-                let mut y = b.repeat(rows);
-                mm(
-                    (rows, out, inp),
-                    &mut y,
-                    rm(0, out),
-                    true,
-                    x,
-                    rm(0, inp),
-                    w,
-                    tr(0, inp),
-                );
-                y
-            }
-        };
+        let mut y = mm_rows((rows, out, inp), x, w, tr(0, inp), Some(b));
         if self.act == Act::Relu {
             y.iter_mut().for_each(|v| *v = v.max(0.0));
         }
@@ -136,26 +117,7 @@ impl CustomOp3 for LinearOp {
         // as the weights' gradient.
         let dx = if x.track_op() {
             let dx = with_values(w, |wv| {
-                let packed = Packed::new(wv, rm(0, inp), out, inp);
-                Ok(
-                    match mm_rows((rows, inp, out), &g, rm(0, inp), &packed, None) {
-                        Some(dx) => dx,
-                        None => {
-                            let mut dx = vec![0.0f32; rows * inp];
-                            mm(
-                                (rows, inp, out),
-                                &mut dx,
-                                rm(0, inp),
-                                false,
-                                &g,
-                                rm(0, out),
-                                wv,
-                                rm(0, inp),
-                            );
-                            dx
-                        }
-                    },
-                )
+                Ok(mm_rows((rows, inp, out), &g, wv, rm(0, inp), None))
             })?;
             Some(tensor(dx, x.dims(), x)?)
         } else {
