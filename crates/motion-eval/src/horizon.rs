@@ -51,6 +51,10 @@ pub struct Stretch {
     pub generated: MotionStats,
     /// Fréchet distance of the stretches to the evaluated split's windows.
     pub frechet: f64,
+    /// Pose spread across the motions ([`motion_metrics::pose_spread`] of
+    /// the stretches' summaries; 0 in reports written before it).
+    #[serde(default)]
+    pub pose_spread: f64,
 }
 
 /// Range of `generated ÷ real` that real windows themselves give.
@@ -59,6 +63,17 @@ pub struct Spread {
     /// The measure ([`MEASURES`]).
     pub measure: String,
     /// Smallest and largest ratio over [`REAL_DRAWS`] draws.
+    pub lo: f64,
+    /// Largest ratio.
+    pub hi: f64,
+}
+
+/// Pose spread across all real windows ([`motion_metrics::pose_spread`]).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PoseSpread {
+    /// Over all real windows.
+    pub all: f64,
+    /// Smallest and largest ratio of a draw's to `all`.
     pub lo: f64,
     /// Largest ratio.
     pub hi: f64,
@@ -83,6 +98,11 @@ pub struct Horizon {
     /// Fréchet distance of the training windows to the test windows (the
     /// reference, as in the 4-second evaluation).
     pub frechet_reference: f64,
+    /// Pose spread across all real windows, and the range of the ratio for
+    /// the draws of [`Horizon::real_spread`] (absent in reports written
+    /// before it).
+    #[serde(default)]
+    pub real_pose_spread: Option<PoseSpread>,
     /// The stretches, in order.
     pub stretches: Vec<Stretch>,
 }
@@ -119,41 +139,52 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
                 .collect();
             let poses: Vec<Vec<Pose>> =
                 windows.iter().map(|x| to_poses(x, &m.data.stats)).collect();
+            let summaries = generate::summaries(&windows, NUM_FEATURES);
             Stretch {
                 start_s: (k * len) as f64 / fps,
                 generated: motion_stats(&poses, &opts),
-                frechet: motion_metrics::frechet(
-                    &test_summaries,
-                    &generate::summaries(&windows, NUM_FEATURES),
-                ),
+                frechet: motion_metrics::frechet(&test_summaries, &summaries),
+                pose_spread: motion_metrics::pose_spread(&summaries),
             }
         })
         .collect();
     // Every real window of the dataset, and draws of the generated set's size.
-    let mut real: Vec<Vec<Pose>> = Vec::new();
+    let (mut real, mut real_summaries): (Vec<Vec<Pose>>, Vec<Vec<f64>>) = (Vec::new(), Vec::new());
     for split in SPLITS {
         if let Some(w) = m.data.splits.get(split) {
-            real.extend(
-                generate::windows_of(w)
-                    .iter()
-                    .map(|x| to_poses(x, &m.data.stats)),
-            );
+            let windows = generate::windows_of(w);
+            real.extend(windows.iter().map(|x| to_poses(x, &m.data.stats)));
+            real_summaries.extend(generate::summaries(&windows, NUM_FEATURES));
         }
     }
     let all = motion_stats(&real, &opts);
+    let all_pose_spread = motion_metrics::pose_spread(&real_summaries);
     let draw = o.motions.min(real.len() / 2).max(1);
-    let draws: Vec<MotionStats> = (0..REAL_DRAWS as u64)
+    let draws: Vec<(MotionStats, f64)> = (0..REAL_DRAWS as u64)
         .into_par_iter()
         .map(|d| {
             let perm = motion_vrnn::rng::Rng::new(spec.seed, 0xD4A7 + d).permutation(real.len());
             let pick: Vec<Vec<Pose>> = perm[..draw].iter().map(|&i| real[i].clone()).collect();
-            motion_stats(&pick, &opts)
+            let summaries: Vec<Vec<f64>> = perm[..draw]
+                .iter()
+                .map(|&i| real_summaries[i].clone())
+                .collect();
+            (
+                motion_stats(&pick, &opts),
+                motion_metrics::pose_spread(&summaries),
+            )
         })
         .collect();
+    let pose_ratios = draws.iter().map(|d| d.1 / all_pose_spread);
+    let real_pose_spread = PoseSpread {
+        all: all_pose_spread,
+        lo: pose_ratios.clone().fold(f64::INFINITY, f64::min),
+        hi: pose_ratios.fold(f64::NEG_INFINITY, f64::max),
+    };
     let real_spread = MEASURES
         .iter()
         .map(|(name, f)| {
-            let ratios: Vec<f64> = draws.iter().map(|d| f(d) / f(&all)).collect();
+            let ratios: Vec<f64> = draws.iter().map(|d| f(&d.0) / f(&all)).collect();
             Spread {
                 measure: name.to_string(),
                 lo: ratios.iter().copied().fold(f64::INFINITY, f64::min),
@@ -172,6 +203,7 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
             &test_summaries,
             &generate::summaries(&generate::windows_of(train), NUM_FEATURES),
         ),
+        real_pose_spread: Some(real_pose_spread),
         stretches: out,
     })
 }
@@ -213,6 +245,20 @@ pub const BANDS: [Band; 9] = [
     }),
 ];
 
+/// A stretch's pose spread across motions ÷ all real windows' (None in a
+/// report written before it was measured).
+pub fn pose_spread_ratio(h: &Horizon, st: &Stretch) -> Option<f64> {
+    let real = h.real_pose_spread.as_ref()?.all;
+    (real > 0.0 && st.pose_spread > 0.0).then(|| st.pose_spread / real)
+}
+
+/// The real-vs-real range of [`pose_spread_ratio`] as a table cell.
+pub fn pose_spread_range(h: &Horizon) -> String {
+    h.real_pose_spread
+        .as_ref()
+        .map_or(String::new(), |p| format!("{:.2}–{:.2}", p.lo, p.hi))
+}
+
 fn near(x: f64) -> bool {
     (0.75..=1.25).contains(&x)
 }
@@ -234,7 +280,9 @@ pub fn markdown(h: &Horizon) -> String {
          Each {}-frame stretch re-based to its own start and measured against all {} real windows \
          of the dataset (generated ÷ real); under each measure, the range of the same ratio for \
          {REAL_DRAWS} draws of {} real windows. Fréchet: against the evaluated split \
-         (train-vs-split reference {:.1}). Bone cv in %.\n\n| stretch |",
+         (train-vs-split reference {:.1}). Bone cv in %. Pose spread: how widely the stretches' average \
+         poses differ across motions (`docs/metrics.md`), a diagnostic of the Fréchet distance, not a \
+         band.\n\n| stretch |",
         h.motions,
         h.seconds,
         h.frames,
@@ -245,15 +293,15 @@ pub fn markdown(h: &Horizon) -> String {
     for (name, _) in MEASURES {
         s += &format!(" {name} |");
     }
-    s += " bone cv | Fréchet |\n|---|";
-    for _ in 0..MEASURES.len() + 2 {
+    s += " bone cv | Fréchet | pose spread |\n|---|";
+    for _ in 0..MEASURES.len() + 3 {
         s += "---|";
     }
     s += "\n| real vs real |";
     for sp in &h.real_spread {
         s += &format!(" {:.2}–{:.2} |", sp.lo, sp.hi);
     }
-    s += " | |\n";
+    s += &format!(" | | {} |\n", pose_spread_range(h));
     for st in &h.stretches {
         s += &format!(
             "| {:.1}–{:.1} s |",
@@ -269,9 +317,10 @@ pub fn markdown(h: &Horizon) -> String {
             }
         }
         s += &format!(
-            " {:.2} | {:.1} |\n",
+            " {:.2} | {:.1} | {} |\n",
             100.0 * st.generated.bone_cv,
-            st.frechet
+            st.frechet,
+            pose_spread_ratio(h, st).map_or("n/a".into(), |r| format!("{r:.2}"))
         );
     }
     s
@@ -306,10 +355,12 @@ mod tests {
             real: stats(1.0),
             real_spread: Vec::new(),
             frechet_reference: 70.0,
+            real_pose_spread: None,
             stretches: vec![Stretch {
                 start_s: 0.0,
                 generated: stretch,
                 frechet,
+                pose_spread: 0.0,
             }],
         }
     }

@@ -500,6 +500,26 @@ pub fn mean_spread(summaries: &[Vec<f64>]) -> f64 {
     }
 }
 
+/// Pose spread across windows of a set of [`window_summary`]s: the summed
+/// variance over windows (n − 1) of each feature's window mean (the first
+/// half of a summary), the trace of their covariance and so that half's
+/// share of [`frechet`]'s `tr(Σ)`. How widely the windows' average poses
+/// differ from one another; 0 below two windows.
+pub fn pose_spread(summaries: &[Vec<f64>]) -> f64 {
+    let n = summaries.len();
+    if n < 2 {
+        return 0.0;
+    }
+    let d = summaries[0].len() / 2;
+    (0..d)
+        .map(|j| {
+            let mean = summaries.iter().map(|r| r[j]).sum::<f64>() / n as f64;
+            let ss: f64 = summaries.iter().map(|r| (r[j] - mean).powi(2)).sum();
+            ss / (n - 1) as f64
+        })
+        .sum()
+}
+
 /// Fréchet distances of `real` to subsets of `pool` the size of `real`:
 /// `k = ⌊|pool| ÷ |real|⌋` disjoint interleaved subsets (subset `j` takes
 /// pool items `j, j + k, j + 2k, …`), so each spreads over the whole pool.
@@ -780,6 +800,15 @@ mod tests {
         let s = [window_summary(&w1), window_summary(&w2)];
         assert!((mean_spread(&s) - 0.75).abs() < 1e-12);
         assert_eq!(mean_spread(&[]), 0.0);
+    }
+
+    #[test]
+    fn pose_spread_of_three_windows() {
+        // Window means (a, b): (0, 3), (2, 3), (1, 6): a varies 1, b 3 (n − 1).
+        let w = |a: f32, b: f32| vec![vec![a, b], vec![a, b]];
+        let s = [w(0.0, 3.0), w(2.0, 3.0), w(1.0, 6.0)].map(|x| window_summary(&x));
+        assert!((pose_spread(&s) - 4.0).abs() < 1e-12);
+        assert_eq!(pose_spread(&s[..1]), 0.0);
     }
 
     #[test]
