@@ -36,7 +36,7 @@ pub struct CompareArgs {
     #[arg(long)]
     reuse_reports: bool,
     /// A classifier (`train-classifier`): also train the default model with
-    /// `--condition category` and ask it for each category.
+    /// `--condition category` (asked for each category) and `--preset minute`.
     #[arg(long)]
     classifier: Option<PathBuf>,
 }

@@ -54,7 +54,8 @@ pub struct TrainArgs {
     /// Starting point for every option below.
     /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
     /// stopping 60; `quick`: 30 epochs, warm-up 5, early stopping 10; `paper`:
-    /// exactly the paper (Adam 1e-3, batch 1,600, 2,000 epochs, nothing else).
+    /// exactly the paper (Adam 1e-3, batch 1,600, 2,000 epochs, nothing else);
+    /// `minute`: `standard` for a minute of motion (docs/training.md).
     #[arg(long, default_value = "standard")]
     pub preset: Preset,
     /// Epochs.
@@ -194,8 +195,8 @@ impl TrainArgs {
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let mut cfg = a.preset.config();
-    cfg.model = Config::named(&a.model).context("unknown model")?;
+    let model = Config::named(&a.model).context("unknown model")?;
+    let mut cfg = a.preset.for_model(model);
     a.overrides().apply(&mut cfg);
     let device = motion_vrnn::model::default_device();
     let data = motion_vrnn::data::load(&a.data, &["train", "val"]).with_context(|| {

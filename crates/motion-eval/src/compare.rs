@@ -2,14 +2,18 @@
 //! evaluated, and one results page (mean ± std over the seeds, the goals
 //! each model meets, training time, contact sheets).
 
-use crate::horizon::{misses, Horizon, HorizonOptions, MEASURES as HORIZON_MEASURES};
+use crate::horizon::{
+    misses, pose_spread_range, pose_spread_ratio, Horizon, HorizonOptions,
+    MEASURES as HORIZON_MEASURES,
+};
 pub use crate::mean_std;
 use crate::report::{report, Contexts, EvalReport};
 use crate::run::RunSpec;
 use crate::samples::{write_samples, SampleOptions};
 use crate::{create_dir, mean_of, EvalError};
 use motion_vrnn::model::Config;
-use motion_vrnn::train::{layout, train, Quiet, TrainConfig};
+use motion_vrnn::options::Preset;
+use motion_vrnn::train::{layout, train, Quiet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -37,7 +41,8 @@ pub struct CompareOptions {
     pub reuse_reports: bool,
     /// A classifier directory (`train-classifier`): also train the default
     /// model conditioned on the category ([`CONDITIONED`]) with every seed
-    /// and ask it for each category ([`crate::asked`]).
+    /// and ask it for each category ([`crate::asked`]), and the `minute`
+    /// preset's model ([`MINUTE`]).
     pub classifier: Option<PathBuf>,
 }
 
@@ -47,6 +52,12 @@ pub const CONDITIONED: &str = "motion-category";
 
 /// What [`CONDITIONED`] is, on the results page.
 const CONDITIONED_WHAT: &str = "`motion` trained with `--condition category`, each generated motion asked for the category of the training window it continues (`--category own`; continuing a test window, that window's category): **the default of `cargo xtask train`** (the `motion` column is the same model without categories, `--condition none`)";
+
+/// The directory name of the default model trained with `--preset minute`.
+pub const MINUTE: &str = "motion-minute";
+
+/// What [`MINUTE`] is, on the results page.
+const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10`), asked as `motion-category` is and for its window's pace: the best minute so far, not the default ([training.md](training.md), \"The judge and the minute\")";
 
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
@@ -64,15 +75,17 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
     let mut table: Vec<(String, Vec<SeedRun>)> = Vec::new();
     // Every model, and with a classifier the default model conditioned on
     // the category, each motion asked for its context's.
-    let mut entries: Vec<(&str, &str, bool)> = o
+    let mut entries: Vec<(&str, &str, bool, Preset)> = o
         .models
         .iter()
-        .map(|m| (m.as_str(), m.as_str(), false))
+        .map(|m| (m.as_str(), m.as_str(), false, Preset::Standard))
         .collect();
     if o.classifier.is_some() {
-        entries.push((CONDITIONED, motion_vrnn::model::DEFAULT_MODEL, true));
+        let default = motion_vrnn::model::DEFAULT_MODEL;
+        entries.push((CONDITIONED, default, true, Preset::Standard));
+        entries.push((MINUTE, default, true, Preset::Minute));
     }
-    for (name, model, conditioned) in entries {
+    for (name, model, conditioned, preset) in entries {
         let mut runs = Vec::new();
         for seed in 0..o.seeds {
             let dir = o.out.join(name).join(format!("seed-{seed}"));
@@ -95,7 +108,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                         )?)
                     }
                 };
-                train_one(d, model, seed, o.epochs, conditioned, &dir)
+                train_one(d, model, seed, o.epochs, conditioned, preset, &dir)
                     .map_err(|e| e.within(format!("training {name} seed {seed}")))?;
             }
             let seconds = train_seconds(&dir).unwrap_or(started.elapsed().as_secs_f64());
@@ -208,23 +221,25 @@ fn conditioned(
     ))
 }
 
-/// Train model `name` with the standard schedule and `seed` into `dir`
-/// (checkpoints, metrics, `loss.png`), as `cargo xtask train --model NAME
-/// --seed SEED [--condition category]` does.
+/// Train model `name` with `preset` and `seed` into `dir` (checkpoints,
+/// metrics, `loss.png`), as `cargo xtask train --model NAME --preset PRESET
+/// --seed SEED [--condition none]` does.
 fn train_one(
     data: &motion_vrnn::data::Dataset,
     name: &str,
     seed: u64,
     epochs: Option<usize>,
     conditioned: bool,
+    preset: Preset,
     dir: &Path,
 ) -> Result<(), EvalError> {
-    let mut cfg = TrainConfig::standard();
-    cfg.model =
+    let model =
         Config::named(name).ok_or_else(|| EvalError::Invalid(format!("unknown model {name:?}")))?;
+    let mut cfg = preset.for_model(model);
     cfg.seed = seed;
     if !conditioned {
         cfg.condition = None;
+        cfg.model.parts.pace = false;
     }
     if let Some(e) = epochs {
         cfg.epochs = e;
@@ -459,14 +474,19 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
           settings (issue 11) were chosen on the `test` split, which is slower than the data (issue 24); the \
           seam easing and restarting ([training.md](training.md)) were judged on generation from training \
           contexts and the `test` continuation together; conditioning the default model on the category was \
-          chosen on `val` (Fréchet distance and ELBO) and the minute from training contexts, its guidance scale on `val`. Every table reports `test` or, for the minute, all \
+          chosen on `val` (Fréchet distance and ELBO) and the minute from training contexts, its guidance scale on `val`; the `minute` preset \
+          on the minute from training contexts and `val`. Every table reports `test` or, for the minute, all \
           real windows.\n\n";
     s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
     for (name, _) in table {
-        let what = motion_vrnn::model::MODELS
-            .iter()
-            .find(|m| m.0 == name)
-            .map_or(CONDITIONED_WHAT, |m| m.1);
+        let what = match name.as_str() {
+            CONDITIONED => CONDITIONED_WHAT,
+            MINUTE => MINUTE_WHAT,
+            _ => motion_vrnn::model::MODELS
+                .iter()
+                .find(|m| m.0 == name)
+                .map_or("", |m| m.1),
+        };
         let _ = writeln!(s, "- `{name}`: {what}");
     }
     s += "\n";
@@ -530,19 +550,21 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
          each to its own start and measures it against all {} real windows of the dataset (generated ÷ real; \
          Fréchet against the test windows, reference {:.1}). The first stretch is the 4-second motion from \
          training contexts, the last ends the minute. Mean ± std over the seeds; the first row gives the range \
-         of each ratio for draws of real windows of the same size.\n\n| model, stretch |",
+         of each ratio for draws of real windows of the same size. Pose spread: how widely the stretches' \
+         average poses differ across motions, ÷ real (a diagnostic of the Fréchet distance, \
+         [metrics.md](metrics.md)).\n\n| model, stretch |",
         h0.motions, h0.seconds, h0.frames, h0.real_windows, h0.frechet_reference
     );
     for (name, _) in HORIZON_MEASURES {
         let _ = write!(s, " {name} |");
     }
-    s += " bone cv % | Fréchet |\n|---|";
-    s += &"---|".repeat(HORIZON_MEASURES.len() + 2);
+    s += " bone cv % | Fréchet | pose spread |\n|---|";
+    s += &"---|".repeat(HORIZON_MEASURES.len() + 3);
     s += "\n| real vs real |";
     for sp in &h0.real_spread {
         let _ = write!(s, " {:.2}–{:.2} |", sp.lo, sp.hi);
     }
-    s += " | |\n";
+    let _ = writeln!(s, " | | {} |", pose_spread_range(h0));
     let horizons = |runs: &[SeedRun]| -> Vec<Horizon> {
         runs.iter()
             .filter_map(|r| r.report.horizon.clone())
@@ -580,6 +602,11 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
                 2,
             );
             s += &cell(hs.iter().map(|h| h.stretches[k].frechet).collect(), 1);
+            let spread: Option<Vec<f64>> = hs
+                .iter()
+                .map(|h| pose_spread_ratio(h, &h.stretches[k]))
+                .collect();
+            s += &spread.map_or(" n/a |".into(), |v| cell(v, 2));
             s += "\n";
         }
     }

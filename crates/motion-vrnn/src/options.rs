@@ -12,16 +12,45 @@ pub enum Preset {
     Quick,
     /// [`TrainConfig::paper`], exactly the paper.
     Paper,
+    /// `standard` for a minute of motion ([`Preset::overrides`]): the feed
+    /// rounds drawn at the sampling temperature, conditioned on the
+    /// category and the pace, the judge over 14 stretches every 10 epochs
+    /// (`docs/training.md`, "The judge and the minute").
+    Minute,
 }
 
 impl Preset {
-    /// The preset's configuration.
+    /// The preset's configuration (its model: the default model).
     pub fn config(self) -> TrainConfig {
         match self {
-            Preset::Standard => TrainConfig::standard(),
+            Preset::Standard | Preset::Minute => TrainConfig::standard(),
             Preset::Quick => TrainConfig::quick(),
             Preset::Paper => TrainConfig::paper(),
         }
+    }
+
+    /// What the preset changes on top of [`Preset::config`] once the model
+    /// is chosen (nothing but for `minute`).
+    pub fn overrides(self) -> Overrides {
+        match self {
+            Preset::Minute => Overrides {
+                rollouts_at_temperature: true,
+                condition: Some(ConditionOn::CategoryPace),
+                judge_stretches: Some(14),
+                judge_every: Some(10),
+                ..Overrides::default()
+            },
+            _ => Overrides::default(),
+        }
+    }
+
+    /// The preset for `model`: [`Preset::config`] with `model` in place of
+    /// its own, then [`Preset::overrides`].
+    pub fn for_model(self, model: crate::model::Config) -> TrainConfig {
+        let mut cfg = self.config();
+        cfg.model = model;
+        self.overrides().apply(&mut cfg);
+        cfg
     }
 }
 
@@ -32,8 +61,9 @@ impl std::str::FromStr for Preset {
             "standard" => Ok(Preset::Standard),
             "quick" => Ok(Preset::Quick),
             "paper" => Ok(Preset::Paper),
+            "minute" => Ok(Preset::Minute),
             _ => Err(format!(
-                "unknown preset {s:?}: `standard`, `quick` or `paper`"
+                "unknown preset {s:?}: `standard`, `quick`, `paper` or `minute`"
             )),
         }
     }
@@ -280,5 +310,41 @@ mod tests {
             Ok(TrainConfig::paper())
         );
         assert!("fast".parse::<Preset>().is_err());
+    }
+
+    #[test]
+    fn the_minute_preset_is_the_standard_one_with_its_options_for_any_model() {
+        let motion = || crate::model::Config::named("motion").unwrap_or_default();
+        let minute = Preset::Minute.for_model(motion());
+        // The same as `--rollouts-at-temperature --condition category+pace
+        // --judge-stretches 14 --judge-every 10` on `standard`.
+        let mut flags = TrainConfig::standard();
+        flags.model = motion();
+        Overrides {
+            rollouts_at_temperature: true,
+            condition: Some(ConditionOn::CategoryPace),
+            judge_stretches: Some(14),
+            judge_every: Some(10),
+            ..Default::default()
+        }
+        .apply(&mut flags);
+        assert_eq!(minute, flags);
+        assert!(minute.model.parts.rollouts_at_temperature && minute.model.parts.pace);
+        assert_eq!(minute.judge_stretches, Some(14));
+        assert_eq!(minute.select, Select::Generation { every: 10 });
+        assert_ne!(minute, Preset::Standard.for_model(motion()));
+        assert_eq!(
+            Preset::Standard.for_model(motion()),
+            TrainConfig::standard()
+        );
+        // A user's option still wins: no condition, so no pace.
+        let mut none = minute.clone();
+        Overrides {
+            condition: Some(ConditionOn::None),
+            ..Default::default()
+        }
+        .apply(&mut none);
+        assert!(none.condition.is_none() && !none.model.parts.pace);
+        assert_eq!("minute".parse::<Preset>(), Ok(Preset::Minute));
     }
 }
