@@ -210,10 +210,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
         eprintln!(
             "training the {} model{} on {} train / {} val windows from {} on {}; batch {}, {} epochs, lr {}",
             a.model,
-            match cfg.condition {
-                Some(_) => " conditioned on the category (--condition none: without)",
-                None => "",
-            },
+            cfg.extras(),
             n("train"),
             n("val"),
             a.data.display(),

@@ -346,5 +346,18 @@ mod tests {
         .apply(&mut none);
         assert!(none.condition.is_none() && !none.model.parts.pace);
         assert_eq!("minute".parse::<Preset>(), Ok(Preset::Minute));
+        assert_eq!(
+            minute.extras(),
+            " conditioned on the category and its pace (--condition none: neither), \
+             fed back at the sampling temperature, judged over 14 stretches"
+        );
+        assert_eq!(
+            none.extras(),
+            ", fed back at the sampling temperature, judged over 14 stretches"
+        );
+        assert_eq!(
+            TrainConfig::standard().extras(),
+            " conditioned on the category (--condition none: without)"
+        );
     }
 }

@@ -160,6 +160,26 @@ impl TrainConfig {
         }
     }
 
+    /// What the run adds to its model, as `train` announces it: the
+    /// condition, feed rounds at the sampling temperature, a judge over
+    /// several stretches (empty for none).
+    pub fn extras(&self) -> String {
+        let mut s = String::new();
+        if self.condition.is_some() {
+            s += match self.model.parts.pace {
+                true => " conditioned on the category and its pace (--condition none: neither)",
+                false => " conditioned on the category (--condition none: without)",
+            };
+        }
+        if self.model.parts.rollouts_at_temperature {
+            s += ", fed back at the sampling temperature";
+        }
+        if let Some(n) = self.judge_stretches {
+            s += &format!(", judged over {n} stretches");
+        }
+        s
+    }
+
     /// The first epoch (1-based, as in the metrics) trained with the
     /// schedule in full: the KL weight warmed up and the share of frames fed
     /// back at its maximum. [`Select::Generation`] judges no epoch before it
