@@ -43,6 +43,22 @@ pub struct Plain {
     pub apd_m: Option<f64>,
 }
 
+/// The model a results-page section is about: its heading and what it is.
+pub struct AskedModel {
+    /// Heading, after "Motion to order: ".
+    pub title: &'static str,
+    /// How it is trained (Markdown).
+    pub about: &'static str,
+}
+
+/// The default model conditioned on the category, as its section says.
+pub const DEFAULT_ASKED: AskedModel = AskedModel {
+    title: "the default model conditioned on the category",
+    about: "`cargo xtask train --condition category` (the default model with a learned row per category added to \
+            the pre-activations of the posterior, the LSTM gates, the prior and the decoder's first layer; 10 % of \
+            windows trained without one)",
+};
+
 /// The plain measures of `poses` (None when empty).
 pub fn plain(poses: &[Vec<Pose>]) -> Option<Plain> {
     if poses.is_empty() {
@@ -437,7 +453,7 @@ pub fn evaluate(spec: &RunSpec, dir: &std::path::Path) -> Result<AskedSet, EvalE
 /// The results page's section: every category asked of the seeds' runs
 /// (`(seed, asked)`), mean ± std over the seeds, the goals met on the mean
 /// and the seeds that miss.
-pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
+pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -> String {
     let Some((_, first)) = runs.first() else {
         return String::new();
     };
@@ -447,10 +463,8 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
         format!("{m:.p$} ± {s:.p$}")
     };
     let mut s = format!(
-        "\n## Motion to order: the default model conditioned on the category (issue 25)\n\n\
-         `cargo xtask train --condition category` (the default model with a learned row per category added to \
-         the pre-activations of the posterior, the LSTM gates, the prior and the decoder's first layer; 10 % of \
-         windows trained without one), {} seeds. Each run is asked for each of its categories \
+        "\n## Motion to order: {} (issue 25)\n\n\
+         {}, {} seeds. Each run is asked for each of its categories \
          ({} motions each, each continuing a training window of that category, guidance {}) and the motion \
          classifier (`train-classifier`, seed 0) says what it got; \"unasked\" continues the same contexts with \
          the same noise and no category (what the contexts alone give). Speed and contact are generated ÷ the \
@@ -460,6 +474,8 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str) -> String {
          | category | train / {split} windows | recognised, real {split} | recognised, asked | recognised, unasked | \
          hips speed ÷ real | contact ÷ real | goals missed (mean) | seeds that miss |\n\
          |---|---|---|---|---|---|---|---|---|\n",
+        model.title,
+        model.about,
         runs.len(),
         first.per_category,
         first.guidance,
@@ -603,7 +619,10 @@ mod tests {
             (0, set(asked(0.9, 0.6, 0.6))),
             (1, set(asked(0.9, 1.0, 0.6))),
         ];
-        let s = page_section(&runs, "sheet.png");
+        let s = page_section(&runs, "sheet.png", &DEFAULT_ASKED);
+        assert!(s.contains(
+            "## Motion to order: the default model conditioned on the category (issue 25)"
+        ));
         let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
         assert!(row.contains("90 ± 0"), "{row}");
         assert!(row.contains("0.80 ± 0.28"), "{row}");

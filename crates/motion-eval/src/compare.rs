@@ -2,6 +2,7 @@
 //! evaluated, and one results page (mean ± std over the seeds, the goals
 //! each model meets, training time, contact sheets).
 
+use crate::asked::{AskedModel, DEFAULT_ASKED};
 use crate::horizon::{
     misses, pose_spread_range, pose_spread_ratio, Horizon, HorizonOptions,
     MEASURES as HORIZON_MEASURES,
@@ -40,9 +41,9 @@ pub struct CompareOptions {
     /// caller vouches that evaluation has not changed since).
     pub reuse_reports: bool,
     /// A classifier directory (`train-classifier`): also train the default
-    /// model conditioned on the category ([`CONDITIONED`]) with every seed
-    /// and ask it for each category ([`crate::asked`]), and the `minute`
-    /// preset's model ([`MINUTE`]).
+    /// model conditioned on the category ([`CONDITIONED`]) and the `minute`
+    /// preset's model ([`MINUTE`]) with every seed, and ask both for each
+    /// category ([`crate::asked`]).
     pub classifier: Option<PathBuf>,
 }
 
@@ -174,19 +175,43 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
     Ok(md)
 }
 
-/// Ask each seed's run of the default model conditioned on the category
-/// (trained with the other models) for every category, draw seed 0's
-/// category sheet; the results page's section.
+/// The `minute` preset's model, as its section says.
+const MINUTE_ASKED: AskedModel = AskedModel {
+    title: "`--preset minute`",
+    about: "`cargo xtask train --preset minute` (the default model's condition with the pace as well, each \
+            motion asked for its context window's; feed rounds at the sampling temperature; the judge over the \
+            minute)",
+};
+
+/// Ask each seed's run of each conditioned model (trained with the other
+/// models) for every category, draw seed 0's category sheet; the results
+/// page's sections.
 fn conditioned(
     o: &CompareOptions,
     classifier: &Path,
     images: &Path,
     log: &dyn Fn(&str),
 ) -> Result<String, EvalError> {
+    let mut md = String::new();
+    for (name, model) in [(CONDITIONED, &DEFAULT_ASKED), (MINUTE, &MINUTE_ASKED)] {
+        md += &asked_runs(o, classifier, images, log, name, model)?;
+    }
+    Ok(md)
+}
+
+/// [`conditioned`] for the runs of `name`.
+fn asked_runs(
+    o: &CompareOptions,
+    classifier: &Path,
+    images: &Path,
+    log: &dyn Fn(&str),
+    name: &str,
+    model: &AskedModel,
+) -> Result<String, EvalError> {
     let mut runs = Vec::new();
     for seed in 0..o.seeds {
         // Trained (or reused) with the other models.
-        let dir = o.out.join(CONDITIONED).join(format!("seed-{seed}"));
+        let dir = o.out.join(name).join(format!("seed-{seed}"));
         let spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
         let kept = dir.join(ASKED_FILE);
         let asked = match std::fs::read_to_string(&kept) {
@@ -201,11 +226,11 @@ fn conditioned(
         };
         if seed == 0 {
             let m = crate::run::Run::load(&spec, &["train"])?;
-            let png = images.join(format!("{CONDITIONED}-categories.png"));
+            let png = images.join(format!("{name}-categories.png"));
             crate::samples::category_sheet(&m, &spec, 128, 5, &png)?;
         }
         log(&format!(
-            "{CONDITIONED} seed {seed}: {} categories, {} of them miss a goal",
+            "{name} seed {seed}: {} categories, {} of them miss a goal",
             asked.categories.len(),
             asked
                 .categories
@@ -217,7 +242,8 @@ fn conditioned(
     }
     Ok(crate::asked::page_section(
         &runs,
-        &format!("images/results/{CONDITIONED}-categories.png"),
+        &format!("images/results/{name}-categories.png"),
+        model,
     ))
 }
 
