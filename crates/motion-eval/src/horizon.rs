@@ -52,9 +52,9 @@ pub struct Stretch {
     /// Fréchet distance of the stretches to the evaluated split's windows.
     pub frechet: f64,
     /// Pose spread across the motions ([`motion_metrics::pose_spread`] of
-    /// the stretches' summaries; 0 in reports written before it).
+    /// the stretches' summaries; absent in reports written before it).
     #[serde(default)]
-    pub pose_spread: f64,
+    pub pose_spread: Option<f64>,
 }
 
 /// Range of `generated ÷ real` that real windows themselves give.
@@ -144,7 +144,7 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
                 start_s: (k * len) as f64 / fps,
                 generated: motion_stats(&poses, &opts),
                 frechet: motion_metrics::frechet(&test_summaries, &summaries),
-                pose_spread: motion_metrics::pose_spread(&summaries),
+                pose_spread: Some(motion_metrics::pose_spread(&summaries)),
             }
         })
         .collect();
@@ -249,7 +249,7 @@ pub const BANDS: [Band; 9] = [
 /// report written before it was measured).
 pub fn pose_spread_ratio(h: &Horizon, st: &Stretch) -> Option<f64> {
     let real = h.real_pose_spread.as_ref()?.all;
-    (real > 0.0 && st.pose_spread > 0.0).then(|| st.pose_spread / real)
+    Some(st.pose_spread? / real).filter(|_| real > 0.0)
 }
 
 /// The real-vs-real range of [`pose_spread_ratio`] as a table cell.
@@ -360,9 +360,38 @@ mod tests {
                 start_s: 0.0,
                 generated: stretch,
                 frechet,
-                pose_spread: 0.0,
+                pose_spread: None,
             }],
         }
+    }
+
+    #[test]
+    fn pose_spread_is_a_ratio_to_real_and_absent_in_old_reports() {
+        let mut h = horizon(stats(1.0), 60.0);
+        assert_eq!(pose_spread_ratio(&h, &h.stretches[0]), None);
+        assert_eq!(pose_spread_range(&h), "");
+        h.real_pose_spread = Some(PoseSpread {
+            all: 2.0,
+            lo: 0.9,
+            hi: 1.05,
+        });
+        assert_eq!(pose_spread_ratio(&h, &h.stretches[0]), None);
+        h.stretches[0].pose_spread = Some(3.0);
+        assert_eq!(pose_spread_ratio(&h, &h.stretches[0]), Some(1.5));
+        // A set of identical motions spreads 0×, not "unmeasured".
+        h.stretches[0].pose_spread = Some(0.0);
+        assert_eq!(pose_spread_ratio(&h, &h.stretches[0]), Some(0.0));
+        assert_eq!(pose_spread_range(&h), "0.90–1.05");
+        // A report written before the pose spread reads back without it.
+        let mut old = serde_json::to_value(&h).expect("serialises");
+        if let Some(o) = old["stretches"][0].as_object_mut() {
+            o.remove("pose_spread");
+        }
+        if let Some(o) = old.as_object_mut() {
+            o.remove("real_pose_spread");
+        }
+        let back: Horizon = serde_json::from_value(old).expect("reads back");
+        assert!(back.real_pose_spread.is_none() && back.stretches[0].pose_spread.is_none());
     }
 
     #[test]
