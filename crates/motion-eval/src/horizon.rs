@@ -323,7 +323,30 @@ pub fn markdown(h: &Horizon) -> String {
             pose_spread_ratio(h, st).map_or("n/a".into(), |r| format!("{r:.2}"))
         );
     }
-    s
+    s + &verdict(h)
+}
+
+/// One line on the minute's goal: how many stretches meet every band, and
+/// which bands the others miss in how many stretches.
+pub fn verdict(h: &Horizon) -> String {
+    let each: Vec<Vec<&str>> = h.stretches.iter().map(|st| misses(h, st)).collect();
+    let missed: Vec<String> = BANDS
+        .iter()
+        .filter_map(|(band, _)| {
+            let n = each.iter().filter(|m| m.contains(band)).count();
+            (n > 0).then(|| format!("{band} in {n}"))
+        })
+        .collect();
+    format!(
+        "\nWithin every band of the minute's goal: {} of {} stretches{}.\n",
+        each.iter().filter(|m| m.is_empty()).count(),
+        h.stretches.len(),
+        if missed.is_empty() {
+            String::new()
+        } else {
+            format!("; missed: {}", missed.join(", "))
+        }
+    )
 }
 
 #[cfg(test)]
@@ -415,8 +438,17 @@ mod tests {
                 "Fréchet ≤ train-vs-test"
             ]
         );
+        assert_eq!(
+            verdict(&h),
+            "\nWithin every band of the minute's goal: 0 of 1 stretches; missed: bone cv ≤ 1 % in 1, \
+             hips speed 0.75–1.25× (whole, last 32) in 1, Fréchet ≤ train-vs-test in 1.\n"
+        );
         // The bands' edges are inside: 1.25× speed passes.
         let h = horizon(stats(1.25), 60.0);
         assert!(misses(&h, &h.stretches[0]).is_empty());
+        assert_eq!(
+            verdict(&h),
+            "\nWithin every band of the minute's goal: 1 of 1 stretches.\n"
+        );
     }
 }
