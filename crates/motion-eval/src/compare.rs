@@ -4,7 +4,7 @@
 
 use crate::asked::{AskedModel, DEFAULT_ASKED};
 use crate::horizon::{
-    misses, pose_spread_range, pose_spread_ratio, Horizon, HorizonOptions,
+    misses, pose_spread_range, pose_spread_ratio, tally, Horizon, HorizonOptions,
     MEASURES as HORIZON_MEASURES,
 };
 pub use crate::mean_std;
@@ -13,7 +13,7 @@ use crate::run::RunSpec;
 use crate::samples::{write_samples, SampleOptions};
 use crate::{create_dir, mean_of, EvalError};
 use motion_vrnn::model::Config;
-use motion_vrnn::options::Preset;
+use motion_vrnn::options::{ConditionOn, Overrides, Preset};
 use motion_vrnn::train::{layout, train, Quiet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -82,9 +82,9 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
         .map(|m| (m.as_str(), m.as_str(), false, Preset::Standard))
         .collect();
     if o.classifier.is_some() {
-        let default = motion_vrnn::model::DEFAULT_MODEL;
-        entries.push((CONDITIONED, default, true, Preset::Standard));
-        entries.push((MINUTE, default, true, Preset::Minute));
+        for (name, preset, _) in CONDITIONED_RUNS {
+            entries.push((name, motion_vrnn::model::DEFAULT_MODEL, true, preset));
+        }
     }
     for (name, model, conditioned, preset) in entries {
         let mut runs = Vec::new();
@@ -183,6 +183,13 @@ const MINUTE_ASKED: AskedModel = AskedModel {
             minute)",
 };
 
+/// The default model's conditioned runs (with a classifier): directory,
+/// preset, and the results page's section on asking it for categories.
+const CONDITIONED_RUNS: [(&str, Preset, &AskedModel); 2] = [
+    (CONDITIONED, Preset::Standard, &DEFAULT_ASKED),
+    (MINUTE, Preset::Minute, &MINUTE_ASKED),
+];
+
 /// Ask each seed's run of each conditioned model (trained with the other
 /// models) for every category, draw seed 0's category sheet; the results
 /// page's sections.
@@ -193,7 +200,7 @@ fn conditioned(
     log: &dyn Fn(&str),
 ) -> Result<String, EvalError> {
     let mut md = String::new();
-    for (name, model) in [(CONDITIONED, &DEFAULT_ASKED), (MINUTE, &MINUTE_ASKED)] {
+    for (name, _, model) in CONDITIONED_RUNS {
         md += &asked_runs(o, classifier, images, log, name, model)?;
     }
     Ok(md)
@@ -264,8 +271,11 @@ fn train_one(
     let mut cfg = preset.for_model(model);
     cfg.seed = seed;
     if !conditioned {
-        cfg.condition = None;
-        cfg.model.parts.pace = false;
+        Overrides {
+            condition: Some(ConditionOn::None),
+            ..Overrides::default()
+        }
+        .apply(&mut cfg);
     }
     if let Some(e) = epochs {
         cfg.epochs = e;
@@ -646,18 +656,8 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
         let Some(h) = &mean.horizon else { continue };
         let recon_ok =
             |r: &EvalReport| (0.67..=1.5).contains(&(r.reconstructed.jerk_m_s3 / r.real.jerk_m_s3));
-        let mut missed: Vec<(&str, usize)> = Vec::new();
-        let mut passing = 0;
-        for st in &h.stretches {
-            let m = misses(h, st);
-            passing += usize::from(m.is_empty() && recon_ok(mean));
-            for b in m {
-                match missed.iter_mut().find(|x| x.0 == b) {
-                    Some(x) => x.1 += 1,
-                    None => missed.push((b, 1)),
-                }
-            }
-        }
+        let (clean, mut missed) = tally(h);
+        let passing = if recon_ok(mean) { clean } else { 0 };
         if !recon_ok(mean) {
             missed.push(("reconstruction jerk", h.stretches.len()));
         }

@@ -326,20 +326,33 @@ pub fn markdown(h: &Horizon) -> String {
     s + &verdict(h)
 }
 
+/// The stretches of `h` that meet every band, and each band missed with
+/// how many stretches miss it (in the order they are first missed).
+pub fn tally(h: &Horizon) -> (usize, Vec<(&'static str, usize)>) {
+    let (mut clean, mut missed) = (0, Vec::<(&'static str, usize)>::new());
+    for st in &h.stretches {
+        let m = misses(h, st);
+        clean += usize::from(m.is_empty());
+        for b in m {
+            match missed.iter_mut().find(|x| x.0 == b) {
+                Some(x) => x.1 += 1,
+                None => missed.push((b, 1)),
+            }
+        }
+    }
+    (clean, missed)
+}
+
 /// One line on the minute's goal: how many stretches meet every band, and
-/// which bands the others miss in how many stretches.
+/// which bands the others miss in how many stretches ([`tally`], in the
+/// order of [`BANDS`]).
 pub fn verdict(h: &Horizon) -> String {
-    let each: Vec<Vec<&str>> = h.stretches.iter().map(|st| misses(h, st)).collect();
-    let missed: Vec<String> = BANDS
-        .iter()
-        .filter_map(|(band, _)| {
-            let n = each.iter().filter(|m| m.contains(band)).count();
-            (n > 0).then(|| format!("{band} in {n}"))
-        })
-        .collect();
+    let (clean, mut missed) = tally(h);
+    missed.sort_by_key(|(b, _)| BANDS.iter().position(|x| x.0 == *b));
+    let missed: Vec<String> = missed.iter().map(|(b, n)| format!("{b} in {n}")).collect();
     format!(
         "\nWithin every band of the minute's goal: {} of {} stretches{}.\n",
-        each.iter().filter(|m| m.is_empty()).count(),
+        clean,
         h.stretches.len(),
         if missed.is_empty() {
             String::new()
