@@ -97,6 +97,9 @@ run() {
     train "$m" gpu --model "$m"
     train "$m" cpu --model "$m"
   done
+  # The minute preset: feed rounds at the temperature and the pace as a condition.
+  train minute gpu --preset minute
+  train minute cpu --preset minute
   train paper-preset gpu --model paper --preset paper
   train paper-preset cpu --model paper --preset paper
   "$x" sample --run "$work/gpu/motion" --n 8 --frames 256 --out "$work/sample-gpu" >"$work/sample-gpu.log" 2>&1 || echo "sample on the GPU failed"
@@ -109,7 +112,7 @@ keys = ["train_recon", "train_kl", "val_recon", "val_kl"]
 bad = 0
 if os.path.exists(os.path.join(w, "failures")):
     print(open(os.path.join(w, "failures")).read(), end=""); bad += 1
-for n in ["paper", "smooth", "skeletal", "feet", "fed", "motion", "paper-preset"]:
+for n in ["paper", "smooth", "skeletal", "feet", "fed", "motion", "minute", "paper-preset"]:
     p = [os.path.join(w, d, n, "metrics.jsonl") for d in ("gpu", "cpu")]
     if not all(map(os.path.exists, p)):
         print(f"{n:13s} MISSING"); bad += 1; continue
