@@ -35,8 +35,8 @@ pub struct CompareArgs {
     /// Reuse each run's kept report (RUN/compare-eval.json) instead of evaluating it again.
     #[arg(long)]
     reuse_reports: bool,
-    /// A classifier (`train-classifier`): also train the default model with
-    /// `--condition category` (asked for each category) and `--preset minute`.
+    /// A classifier (`train-classifier`): also train `motion` with `--preset
+    /// standard` and the default `--preset minute`, each asked for each category.
     #[arg(long)]
     classifier: Option<PathBuf>,
 }

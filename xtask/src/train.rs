@@ -51,12 +51,12 @@ pub struct TrainArgs {
     /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
     #[arg(long)]
     pub latent: Option<usize>,
-    /// Starting point for every option below.
-    /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
-    /// stopping 60; `quick`: 30 epochs, warm-up 5, early stopping 10; `paper`:
-    /// exactly the paper (Adam 1e-3, batch 1,600, 2,000 epochs, nothing else);
-    /// `minute`: `standard` for a minute of motion (docs/training.md).
-    #[arg(long, default_value = "standard")]
+    /// Starting point for every option below (docs/training.md, "Presets").
+    /// `minute`: `standard` with --rollouts-at-temperature --condition
+    /// category+pace --judge-stretches 14 --judge-every 10; `standard`: batch 64,
+    /// 400 epochs, KL warm-up 20, clipping 100, early stopping 60; `quick`: 30
+    /// epochs; `paper`: exactly the paper (batch 1,600, 2,000 epochs).
+    #[arg(long, default_value = "minute")]
     pub preset: Preset,
     /// Epochs.
     #[arg(long)]
@@ -96,8 +96,8 @@ pub struct TrainArgs {
     #[arg(long)]
     pub judge_stretches: Option<usize>,
     /// `category` (the `standard` preset's): condition on each window's
-    /// category, so `sample --category walk` can ask for one; `category+pace`:
-    /// and on its pace; `none`: neither (the `quick` and `paper` presets').
+    /// category, so `sample --category walk` can ask for one; `category+pace`
+    /// (`minute`'s): and on its pace; `none`: neither (`quick`, `paper`).
     #[arg(long)]
     pub condition: Option<ConditionOn>,
     /// Share of windows trained without their category (--condition category).
@@ -285,7 +285,7 @@ pub struct BenchArgs {
     /// Timed steps per batch size (after 2 warm-up steps).
     #[arg(long, default_value_t = 5)]
     steps: usize,
-    /// Models to time (default: every model, then `motion+category`, what `train` trains by default).
+    /// Models to time (default: every model, then `motion+category` (`--preset standard`) and `minute`, what `train` trains by default).
     #[arg(long = "model", value_parser = bench::parse_model)]
     models: Vec<String>,
     /// Also time each model through candle ops and autograd (the blocks' reference path).

@@ -2,7 +2,7 @@
 //! evaluated, and one results page (mean ± std over the seeds, the goals
 //! each model meets, training time, contact sheets).
 
-use crate::asked::{AskedModel, DEFAULT_ASKED};
+use crate::asked::{AskedModel, STANDARD_ASKED};
 use crate::horizon::{
     misses, pose_spread_range, pose_spread_ratio, tally, Horizon, HorizonOptions,
     MEASURES as HORIZON_MEASURES,
@@ -40,25 +40,26 @@ pub struct CompareOptions {
     /// one instead of evaluating it again (written on every evaluation; the
     /// caller vouches that evaluation has not changed since).
     pub reuse_reports: bool,
-    /// A classifier directory (`train-classifier`): also train the default
-    /// model conditioned on the category ([`CONDITIONED`]) and the `minute`
-    /// preset's model ([`MINUTE`]) with every seed, and ask both for each
-    /// category ([`crate::asked`]).
+    /// A classifier directory (`train-classifier`): also train the `motion`
+    /// model with the `standard` preset ([`CONDITIONED`]) and with the
+    /// default `minute` preset ([`MINUTE`]) with every seed, and ask both for
+    /// each category ([`crate::asked`]).
     pub classifier: Option<PathBuf>,
 }
 
-/// The directory name (under [`CompareOptions::out`]) of the default model
+/// The directory name (under [`CompareOptions::out`]) of the `motion` model
 /// trained with `--condition category`.
 pub const CONDITIONED: &str = "motion-category";
 
 /// What [`CONDITIONED`] is, on the results page.
-const CONDITIONED_WHAT: &str = "`motion` trained with `--condition category`, each generated motion asked for the category of the training window it continues (`--category own`; continuing a test window, that window's category): **the default of `cargo xtask train`** (the `motion` column is the same model without categories, `--condition none`)";
+const CONDITIONED_WHAT: &str = "`motion` trained with `--preset standard` (conditioned on the category), each generated motion asked for the category of the training window it continues (`--category own`; continuing a test window, that window's category): the default of `cargo xtask train` until the `minute` preset (the `motion` column is the same model without categories, `--condition none`)";
 
-/// The directory name of the default model trained with `--preset minute`.
+/// The directory name of the default model, `motion` trained with the
+/// `minute` preset (what `cargo xtask train` trains with no flags).
 pub const MINUTE: &str = "motion-minute";
 
 /// What [`MINUTE`] is, on the results page.
-const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10`), asked as `motion-category` is and for its window's pace: the best minute so far, not the default ([training.md](training.md), \"The judge and the minute\")";
+const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10`), asked as `motion-category` is and for its window's pace: **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\")";
 
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
@@ -74,8 +75,8 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
     create_dir(&images)?;
     let mut data = None;
     let mut table: Vec<(String, Vec<SeedRun>)> = Vec::new();
-    // Every model, and with a classifier the default model conditioned on
-    // the category, each motion asked for its context's.
+    // Every model, and with a classifier the conditioned runs of `motion`,
+    // each motion asked for its context's category.
     let mut entries: Vec<(&str, &str, bool, Preset)> = o
         .models
         .iter()
@@ -177,16 +178,16 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
 
 /// The `minute` preset's model, as its section says.
 const MINUTE_ASKED: AskedModel = AskedModel {
-    title: "`--preset minute`",
-    about: "`cargo xtask train --preset minute` (the default model's condition with the pace as well, each \
-            motion asked for its context window's; feed rounds at the sampling temperature; the judge over the \
-            minute)",
+    title: "the default model (`--preset minute`)",
+    about: "`cargo xtask train`, the `minute` preset (the `standard` preset's condition with the pace as well, \
+            each motion asked for its context window's; feed rounds at the sampling temperature; the judge over \
+            the minute)",
 };
 
-/// The default model's conditioned runs (with a classifier): directory,
+/// The `motion` model's conditioned runs (with a classifier): directory,
 /// preset, and the results page's section on asking it for categories.
 const CONDITIONED_RUNS: [(&str, Preset, &AskedModel); 2] = [
-    (CONDITIONED, Preset::Standard, &DEFAULT_ASKED),
+    (CONDITIONED, Preset::Standard, &STANDARD_ASKED),
     (MINUTE, Preset::Minute, &MINUTE_ASKED),
 ];
 
@@ -506,12 +507,12 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
         motion_vrnn::generate::GUIDANCE
     );
     s += "Which split each choice was made on: every run's `best` checkpoint is chosen by the judge on \
-          training windows (with `val` as its Fréchet reference); the parts of the default model and their \
+          training windows (with `val` as its Fréchet reference); the parts of the `motion` model and their \
           settings (issue 11) were chosen on the `test` split, which is slower than the data (issue 24); the \
           seam easing and restarting ([training.md](training.md)) were judged on generation from training \
-          contexts and the `test` continuation together; conditioning the default model on the category was \
-          chosen on `val` (Fréchet distance and ELBO) and the minute from training contexts, its guidance scale on `val`; the `minute` preset \
-          on the minute from training contexts and `val`. Every table reports `test` or, for the minute, all \
+          contexts and the `test` continuation together; conditioning the `motion` model on the category was \
+          chosen on `val` (Fréchet distance and ELBO) and the minute from training contexts, its guidance scale on `val`; the `minute` preset, \
+          now the default, on the minute from training contexts and `val`. Every table reports `test` or, for the minute, all \
           real windows.\n\n";
     s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
     for (name, _) in table {

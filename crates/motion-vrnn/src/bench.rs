@@ -12,19 +12,25 @@ use std::path::Path;
 /// Frames per window in the benchmark.
 pub const FRAMES: usize = 128;
 
-/// The bench's name for what `cargo xtask train` trains by default: `motion`
-/// conditioned on the category (every category of the list, each window
-/// asking for one, a tenth for none, as [`crate::train::CONDITION_DROPOUT`]).
+/// The bench's name for what `cargo xtask train --preset standard` trains:
+/// `motion` conditioned on the category (every category of the list, each
+/// window asking for one, a tenth for none, as
+/// [`crate::train::CONDITION_DROPOUT`]).
 pub const CONDITIONED: &str = "motion+category";
 
+/// The bench's name for what `cargo xtask train` trains by default (the
+/// `minute` preset): [`CONDITIONED`] with the pace as a condition and the
+/// feed rounds drawn at the sampling temperature.
+pub const DEFAULT: &str = "minute";
+
 /// The models `bench-train` times: every model of [`crate::model::MODELS`],
-/// then [`CONDITIONED`].
+/// then [`CONDITIONED`] and [`DEFAULT`].
 pub fn bench_models() -> Vec<String> {
     let mut v: Vec<String> = crate::model::MODELS
         .iter()
         .map(|m| m.0.to_string())
         .collect();
-    v.push(CONDITIONED.to_string());
+    v.extend([CONDITIONED.to_string(), DEFAULT.to_string()]);
     v
 }
 
@@ -43,8 +49,11 @@ pub fn parse_model(name: &str) -> Result<String, String> {
 
 /// The configuration `name` ([`bench_models`]) stands for.
 fn bench_config(name: &str) -> Option<Config> {
-    if name == CONDITIONED {
+    if name == CONDITIONED || name == DEFAULT {
         let mut c = Config::named(crate::model::DEFAULT_MODEL)?;
+        if name == DEFAULT {
+            c = crate::options::Preset::Minute.for_model(c).model;
+        }
         c.categories = mocap_ingest::category::Category::ALL
             .iter()
             .map(|c| c.name().to_string())

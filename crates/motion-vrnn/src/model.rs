@@ -416,12 +416,20 @@ impl Config {
             })
     }
 
-    /// The name in [`MODELS`] of this configuration, if it has one.
+    /// The name in [`MODELS`] of this configuration, if it has one: the
+    /// same parts, apart from the two any model can be trained with (the
+    /// `minute` preset's): the pace as a condition ([`Parts::pace`]) and
+    /// feed rounds at the temperature ([`Parts::rollouts_at_temperature`]).
     pub fn name(&self) -> Option<&'static str> {
+        let plain = |p: &Parts| Parts {
+            pace: false,
+            rollouts_at_temperature: false,
+            ..p.clone()
+        };
         MODELS
             .iter()
             .map(|m| m.0)
-            .find(|n| Config::named(n).is_some_and(|c| c.parts == self.parts))
+            .find(|n| Config::named(n).is_some_and(|c| plain(&c.parts) == plain(&self.parts)))
     }
 
     /// Fill what the model needs from the training data: for the skeleton

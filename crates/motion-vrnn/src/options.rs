@@ -6,21 +6,24 @@ use crate::train::{Select, TrainConfig};
 /// The starting point of a training configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Preset {
-    /// [`TrainConfig::standard`], the default.
+    /// [`TrainConfig::standard`]: the four-second model (the default
+    /// until the minute preset replaced it).
     Standard,
     /// [`TrainConfig::quick`], a quick look.
     Quick,
     /// [`TrainConfig::paper`], exactly the paper.
     Paper,
-    /// `standard` for a minute of motion ([`Preset::overrides`]): the feed
-    /// rounds drawn at the sampling temperature, conditioned on the
-    /// category and the pace, the judge over 14 stretches every 10 epochs
-    /// (`docs/training.md`, "The judge and the minute").
+    /// The default of `cargo xtask train`: `standard` for a minute of
+    /// motion ([`Preset::overrides`]): the feed rounds drawn at the sampling
+    /// temperature, conditioned on the category and the pace, the judge over
+    /// 14 stretches every 10 epochs (`docs/training.md`, "The judge and the
+    /// minute").
     Minute,
 }
 
 impl Preset {
-    /// The preset's configuration (its model: the default model).
+    /// The preset's configuration (its model: the default model), before
+    /// [`Preset::overrides`].
     pub fn config(self) -> TrainConfig {
         match self {
             Preset::Standard | Preset::Minute => TrainConfig::standard(),
@@ -330,6 +333,11 @@ mod tests {
         .apply(&mut flags);
         assert_eq!(minute, flags);
         assert!(minute.model.parts.rollouts_at_temperature && minute.model.parts.pace);
+        // Still named as its model, for every model (the checkpoint's name).
+        for (name, _) in crate::model::MODELS {
+            let c = crate::model::Config::named(name).unwrap_or_default();
+            assert_eq!(Preset::Minute.for_model(c).model.name(), Some(name));
+        }
         assert_eq!(minute.judge_stretches, Some(14));
         assert_eq!(minute.select, Select::Generation { every: 10 });
         assert_ne!(minute, Preset::Standard.for_model(motion()));
