@@ -173,11 +173,9 @@ pub(crate) fn shared_samples() -> Result<Vec<PathBuf>> {
 }
 
 fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
-    let sources = if sources.is_empty() {
-        shared_samples()?
-    } else {
-        sources
-    };
+    let sources = Some(sources)
+        .filter(|s| !s.is_empty())
+        .map_or_else(shared_samples, Ok)?;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     print!(
         "{}",

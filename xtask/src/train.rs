@@ -48,14 +48,17 @@ pub struct TrainArgs {
     /// Feed back in training at that temperature, as sampling draws (docs/training.md).
     #[arg(long)]
     pub rollouts_at_temperature: bool,
+    /// Keep generated figures' lowest joint at most this high above the floor (CMU units; 0: no limit).
+    #[arg(long)]
+    pub float_limit: Option<f64>,
     /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
     #[arg(long)]
     pub latent: Option<usize>,
     /// Starting point for every option below (docs/training.md, "Presets").
     /// `minute`: `standard` with --rollouts-at-temperature --condition
-    /// category+pace --judge-stretches 14 --judge-every 10; `standard`: batch 64,
-    /// 400 epochs, KL warm-up 20, clipping 100, early stopping 60; `quick`: 30
-    /// epochs; `paper`: exactly the paper (batch 1,600, 2,000 epochs).
+    /// category+pace --judge-stretches 14 --judge-every 10 --float-limit 3;
+    /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
+    /// stopping 60; `quick`: 30 epochs; `paper`: the paper (batch 1,600).
     #[arg(long, default_value = "minute")]
     pub preset: Preset,
     /// Epochs.
@@ -190,6 +193,7 @@ impl TrainArgs {
             condition: self.condition,
             condition_dropout: self.condition_dropout,
             rollouts_at_temperature: self.rollouts_at_temperature,
+            float_limit: self.float_limit,
         }
     }
 }

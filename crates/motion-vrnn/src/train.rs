@@ -161,8 +161,8 @@ impl TrainConfig {
     }
 
     /// What the run adds to its model, as `train` announces it: the
-    /// condition, feed rounds at the sampling temperature, a judge over
-    /// several stretches (empty for none).
+    /// condition, feed rounds at the sampling temperature, the ceiling over
+    /// the floor, a judge over several stretches (empty for none).
     pub fn extras(&self) -> String {
         let mut s = String::new();
         if self.condition.is_some() {
@@ -173,6 +173,9 @@ impl TrainConfig {
         }
         if self.model.parts.rollouts_at_temperature {
             s += ", fed back at the sampling temperature";
+        }
+        if let Some(l) = self.model.parts.float_limit {
+            s += &format!(", generated figures at most {l} units off the floor");
         }
         if let Some(n) = self.judge_stretches {
             s += &format!(", judged over {n} stretches");

@@ -392,6 +392,68 @@ fn contact_sharpness_changes_the_generated_foot_lock_only() {
     }
 }
 
+/// The ceiling lowers every generated frame whose lowest joint is above
+/// the limit to it, leaves the start frames and the losses alone, and must
+/// be positive.
+#[test]
+fn the_float_limit_holds_generated_figures_down() {
+    // `model`'s statistics with every joint 10 units up: a floating figure.
+    let mut c = Config::named("motion").unwrap();
+    let mut mean = vec![0.0; 58];
+    mean[0] = 15.0;
+    for j in 0..18 {
+        mean[1 + 3 * j + 1] = 10.0;
+    }
+    let (x, _) = batch(4, 8, 100);
+    c.fit_to(
+        &mean,
+        &[2.0; 58],
+        &x.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+    );
+    let mut m = init_model(&c, 6, &Device::Cpu).unwrap();
+    let (x, _) = batch(3, 9, 17);
+    let start = x.narrow(1, 0, 3).unwrap();
+    let e = noise(4, 0, 9, 3, 8, &Device::Cpu).unwrap();
+    let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let (x8, eps) = batch(2, 6, 3);
+    let loss = |m: &Trained| flat(m.model.losses(&x8, &eps, None, None).unwrap().recon);
+    let body = m.model.config().body.clone().unwrap();
+    // The lowest joint's height (CMU units) of each frame of normalised rows.
+    let lowest = |v: &[f32]| -> Vec<f32> {
+        let raw = |r: &[f32], k: usize| r[k] * body.std[k] + body.mean[k];
+        v.chunks(58)
+            .map(|r| (0..18).fold(raw(r, 0), |a, j| a.min(raw(r, 1 + 3 * j + 1))))
+            .collect()
+    };
+    let plain = flat(m.model.sample(&e, Some(&start), None).unwrap());
+    let l1 = loss(&m);
+    // The generated frames of each motion (after its 3 start frames).
+    let f = 58;
+    let made = |v: &[f32]| -> Vec<f32> {
+        (0..3)
+            .flat_map(|k| lowest(&v[k * 9 * f + 3 * f..(k + 1) * 9 * f]))
+            .collect()
+    };
+    // Half the highest a generated figure rises.
+    let top = made(&plain).iter().fold(f32::MIN, |a, &b| a.max(b));
+    assert!(top > 0.2, "the untrained model does not float: {top}");
+    let limit = 0.5 * top;
+    m.model.set_float_limit(Some(limit as f64)).unwrap();
+    let held = flat(m.model.sample(&e, Some(&start), None).unwrap());
+    for k in 0..3 {
+        let row = k * 9 * f;
+        assert_eq!(held[row..row + 3 * f], plain[row..row + 3 * f]);
+    }
+    let low = made(&held);
+    assert!(
+        low.iter().all(|&y| y <= limit + 1e-3),
+        "{low:?} over {limit}"
+    );
+    assert!(held != plain, "the highest frame came down");
+    assert_eq!(loss(&m), l1);
+    assert!(m.model.set_float_limit(Some(-1.0)).is_err());
+}
+
 /// The mask has the share asked for, and is a pure function of seed and step.
 #[test]
 fn feed_masks_have_their_share() {

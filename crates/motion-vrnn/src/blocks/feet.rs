@@ -109,6 +109,27 @@ pub fn ground(x: &Tensor, logits: &Tensor, body: &Stats) -> Result<Tensor> {
     x + shift.broadcast_mul(&per)?
 }
 
+/// Every height of normalised rows `x: […, input]` lowered by how far the
+/// lowest joint (the root included) is above `limit` (CMU units), where it
+/// is: a figure floats no higher than `limit` (the sampling path only).
+pub fn ceiling(x: &Tensor, limit: f64, body: &Stats) -> Result<Tensor> {
+    let f = x.dim(D::Minus1)?;
+    let mut heights = vec![raw_col(x, 0, body)?];
+    for j in 0..BONES {
+        heights.push(raw_col(x, 1 + 3 * j + 1, body)?);
+    }
+    let low = Tensor::cat(&heights, D::Minus1)?.min_keepdim(D::Minus1)?;
+    let shift = (low - limit)?.relu()?;
+    let mut per: Vec<f32> = vec![0.0; f];
+    per[0] = 1.0 / body.std[0];
+    for j in 0..BONES {
+        let k = 1 + 3 * j + 1;
+        per[k] = 1.0 / body.std[k];
+    }
+    let per = Tensor::new(per.as_slice(), x.device())?;
+    x - shift.broadcast_mul(&per)?
+}
+
 /// The foot lock: frame `cur` (normalised `[…, n, input]`) with the root's
 /// planar velocity replaced by `α·v_lock + (1 − α)·v`, where `v_lock` keeps
 /// the toes of `prev` in place (each toe weighted by its contact
