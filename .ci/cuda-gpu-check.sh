@@ -93,17 +93,19 @@ run() {
     fi
   }
   local m
+  # Every model with the `standard` preset, then the default (`minute`).
   for m in paper smooth skeletal feet fed motion; do
-    train "$m" gpu --model "$m"
-    train "$m" cpu --model "$m"
+    train "$m" gpu --model "$m" --preset standard
+    train "$m" cpu --model "$m" --preset standard
   done
   # The minute preset: feed rounds at the temperature and the pace as a condition.
   train minute gpu --preset minute
   train minute cpu --preset minute
   train paper-preset gpu --model paper --preset paper
   train paper-preset cpu --model paper --preset paper
-  "$x" sample --run "$work/gpu/motion" --n 8 --frames 256 --out "$work/sample-gpu" >"$work/sample-gpu.log" 2>&1 || echo "sample on the GPU failed"
-  CUDA_VISIBLE_DEVICES= "$x" sample --run "$work/gpu/motion" --n 8 --frames 256 --out "$work/sample-cpu" >"$work/sample-cpu.log" 2>&1 || echo "sample on the CPU failed"
+  # Sampling the default's run exercises the pace and the ceiling too.
+  "$x" sample --run "$work/gpu/minute" --n 8 --frames 256 --out "$work/sample-gpu" >"$work/sample-gpu.log" 2>&1 || echo "sample on the GPU failed"
+  CUDA_VISIBLE_DEVICES= "$x" sample --run "$work/gpu/minute" --n 8 --frames 256 --out "$work/sample-cpu" >"$work/sample-cpu.log" 2>&1 || echo "sample on the CPU failed"
   local rc=0
   python3 - "$work" <<'EOF' || rc=$?
 import json, os, sys
