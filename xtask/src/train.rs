@@ -56,7 +56,7 @@ pub struct TrainArgs {
     pub latent: Option<usize>,
     /// Starting point for every option below (docs/training.md, "Presets").
     /// `minute`: `standard` with --rollouts-at-temperature --condition
-    /// category+pace --judge-stretches 14 --judge-every 10 --float-limit 3;
+    /// category+pace --judge-stretches 14 --judge-every 10;
     /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
     /// stopping 60; `quick`: 30 epochs; `paper`: the paper (batch 1,600).
     #[arg(long, default_value = "minute")]

@@ -59,7 +59,7 @@ const CONDITIONED_WHAT: &str = "`motion` trained with `--preset standard` (condi
 pub const MINUTE: &str = "motion-minute";
 
 /// What [`MINUTE`] is, on the results page.
-const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10 --float-limit 3`), asked as `motion-category` is and for its window's pace: **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\")";
+const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10`), asked as `motion-category` is and for its window's pace: **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\")";
 
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
@@ -180,8 +180,8 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
 const MINUTE_ASKED: AskedModel = AskedModel {
     title: "the default model (`--preset minute`)",
     about: "`cargo xtask train`, the `minute` preset (the `standard` preset's condition with the pace as well, \
-            each motion asked for its context window's; feed rounds at the sampling temperature; generated figures \
-            kept from floating; the judge over the minute)",
+            each motion asked for its context window's; feed rounds at the sampling temperature; the judge over \
+            the minute)",
 };
 
 /// The `motion` model's conditioned runs (with a classifier): directory,
@@ -589,19 +589,25 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
          training contexts, the last ends the minute. Mean ± std over the seeds; the first row gives the range \
          of each ratio for draws of real windows of the same size. Pose spread: how widely the stretches' \
          average poses differ across motions, ÷ real (a diagnostic of the Fréchet distance, \
-         [metrics.md](metrics.md)).\n\n| model, stretch |",
+         [metrics.md](metrics.md)). In the air: the share of frames with no joint within 5 cm of the floor, \
+         in % (the real windows' in the first row).\n\n| model, stretch |",
         h0.motions, h0.seconds, h0.frames, h0.real_windows, h0.frechet_reference
     );
     for (name, _) in HORIZON_MEASURES {
         let _ = write!(s, " {name} |");
     }
-    s += " bone cv % | Fréchet | pose spread |\n|---|";
-    s += &"---|".repeat(HORIZON_MEASURES.len() + 3);
+    s += " bone cv % | in the air % | Fréchet | pose spread |\n|---|";
+    s += &"---|".repeat(HORIZON_MEASURES.len() + 4);
     s += "\n| real vs real |";
     for sp in &h0.real_spread {
         let _ = write!(s, " {:.2}–{:.2} |", sp.lo, sp.hi);
     }
-    let _ = writeln!(s, " | | {} |", pose_spread_range(h0));
+    let _ = writeln!(
+        s,
+        " | real {:.1} | | {} |",
+        100.0 * h0.real.airborne_share,
+        pose_spread_range(h0)
+    );
     let horizons = |runs: &[SeedRun]| -> Vec<Horizon> {
         runs.iter()
             .filter_map(|r| r.report.horizon.clone())
@@ -637,6 +643,12 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
                     .map(|h| 100.0 * h.stretches[k].generated.bone_cv)
                     .collect(),
                 2,
+            );
+            s += &cell(
+                hs.iter()
+                    .map(|h| 100.0 * h.stretches[k].generated.airborne_share)
+                    .collect(),
+                1,
             );
             s += &cell(hs.iter().map(|h| h.stretches[k].frechet).collect(), 1);
             let spread: Option<Vec<f64>> = hs

@@ -293,15 +293,19 @@ pub fn markdown(h: &Horizon) -> String {
     for (name, _) in MEASURES {
         s += &format!(" {name} |");
     }
-    s += " bone cv | Fréchet | pose spread |\n|---|";
-    for _ in 0..MEASURES.len() + 3 {
+    s += " bone cv | in the air % | Fréchet | pose spread |\n|---|";
+    for _ in 0..MEASURES.len() + 4 {
         s += "---|";
     }
     s += "\n| real vs real |";
     for sp in &h.real_spread {
         s += &format!(" {:.2}–{:.2} |", sp.lo, sp.hi);
     }
-    s += &format!(" | | {} |\n", pose_spread_range(h));
+    s += &format!(
+        " | real {:.1} | | {} |\n",
+        100.0 * h.real.airborne_share,
+        pose_spread_range(h)
+    );
     for st in &h.stretches {
         s += &format!(
             "| {:.1}–{:.1} s |",
@@ -317,8 +321,9 @@ pub fn markdown(h: &Horizon) -> String {
             }
         }
         s += &format!(
-            " {:.2} | {:.1} | {} |\n",
+            " {:.2} | {:.1} | {:.1} | {} |\n",
             100.0 * st.generated.bone_cv,
+            100.0 * st.generated.airborne_share,
             st.frechet,
             pose_spread_ratio(h, st).map_or("n/a".into(), |r| format!("{r:.2}"))
         );

@@ -227,7 +227,7 @@ pub fn markdown(r: &EvalReport) -> String {
     );
     s += "| measure | real | reconstructed | generated | reconstructed / real | generated / real |\n|---|---|---|---|---|---|\n";
     type Row = (&'static str, fn(&MotionStats) -> f64, usize);
-    let rows: [Row; 12] = [
+    let rows: [Row; 13] = [
         ("APD, m", |m| m.apd_m, 3),
         ("mean jerk, m/s³", |m| m.jerk_m_s3, 1),
         ("power above 5 Hz", |m| m.high_freq_share, 4),
@@ -244,6 +244,11 @@ pub fn markdown(r: &EvalReport) -> String {
             4,
         ),
         ("turning rate, °/s", |m| m.turning_deg_s, 1),
+        (
+            "frames in the air (no joint within 5 cm of the floor)",
+            |m| m.airborne_share,
+            4,
+        ),
         ("hips height, m", |m| m.hip_height_m, 3),
         ("hips height, last 32 frames, m", |m| m.hip_height_end_m, 3),
         ("hips horizontal speed, m/s", |m| m.root_speed_m_s, 3),

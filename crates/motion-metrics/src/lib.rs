@@ -77,6 +77,27 @@ pub struct MotionStats {
     /// per second ([`turning_rate`]).
     #[serde(default)]
     pub turning_deg_s: f64,
+    /// Share of frames with no joint within [`AIRBORNE_M`] of the floor
+    /// ([`airborne_share`]; 0 in reports written before it).
+    #[serde(default)]
+    pub airborne_share: f64,
+}
+
+/// Height of a frame's lowest joint above which the figure is in the air
+/// ([`airborne_share`]): 5 cm, the foot-contact height.
+pub const AIRBORNE_M: f64 = 0.05;
+
+/// Share of a motion's frames whose lowest joint is more than
+/// [`AIRBORNE_M`] above the floor (`y = 0`): a figure off the ground.
+pub fn airborne_share(m: &[Pose]) -> f64 {
+    if m.is_empty() {
+        return 0.0;
+    }
+    let up = m
+        .iter()
+        .filter(|p| p.iter().fold(f64::INFINITY, |a, j| a.min(j[1])) * METRES_PER_UNIT > AIRBORNE_M)
+        .count();
+    up as f64 / m.len() as f64
 }
 
 /// Frames at the end of a motion over which drift is measured.
@@ -308,6 +329,7 @@ pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
         root_speed_m_s: mean(&|m| root_speed(m, 0, o.fps)),
         root_speed_end_m_s: mean(&|m| root_speed(m, m.len().saturating_sub(TAIL), o.fps)),
         turning_deg_s: mean(&|m| turning_rate(m, o.fps)),
+        airborne_share: mean(&airborne_share),
     }
 }
 
@@ -682,6 +704,19 @@ mod tests {
         // Standing still, and too short to turn.
         assert_eq!(turning_rate(&vec![facing(0.5); 10], 30.0), 0.0);
         assert_eq!(turning_rate(&left[..1], 30.0), 0.0);
+    }
+
+    #[test]
+    fn airborne_share_counts_frames_whose_lowest_joint_is_off_the_floor() {
+        // Every joint at height h units: 0.05 m is 0.887 units.
+        let at = |h: f64| -> Pose { [[1.0, h, 2.0]; NUM_JOINTS] };
+        let m = [at(0.0), at(0.8), at(0.9), at(5.0), at(-3.0)];
+        assert!((airborne_share(&m) - 0.4).abs() < 1e-12);
+        // One joint on the floor grounds the frame.
+        let mut one = at(5.0);
+        one[7][1] = 0.1;
+        assert_eq!(airborne_share(&[one]), 0.0);
+        assert_eq!(airborne_share(&[]), 0.0);
     }
 
     #[test]

@@ -147,9 +147,10 @@ pub struct Parts {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_sharpness: Option<f64>,
     /// When generating, the lowest joint is kept at most this high above
-    /// the floor (CMU units; None: no limit; the `minute` preset:
-    /// [`FLOAT_LIMIT`]): a figure cannot float away. Training and the ELBO
-    /// do not use it; the judge, which generates, does.
+    /// the floor (CMU units; None: no limit, the default; `--float-limit`):
+    /// a figure cannot float higher. Training and the ELBO do not use it;
+    /// the judge, which generates, does (`docs/training.md`, "A ceiling
+    /// over the floor": measured, not adopted).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub float_limit: Option<f64>,
     /// The pace: a conditioned model also reads, at every step, the mean
@@ -234,14 +235,6 @@ pub const SELF_FEED: f64 = 0.5;
 
 /// The sampling temperature of `motion` ([`Parts::temperature`]).
 pub const MOTION_TEMPERATURE: f64 = 0.7;
-
-/// How high the `minute` preset lets a generated figure's lowest joint rise
-/// above the floor ([`Parts::float_limit`], CMU units: 3 × 0.0564 m =
-/// 17 cm). In the shared samples no real frame has its lowest joint more
-/// than 0.47 units (2.7 cm) above the floor, while a minute of the model
-/// had it above 1 unit in 23 % of frames (`docs/training.md`, "A ceiling
-/// over the floor"); 0.5 held the motions too still, 3 was chosen on `val`.
-pub const FLOAT_LIMIT: f64 = 3.0;
 
 /// Generated frames over which a motion leaves its real start frames
 /// ([`MotionModel::sample`]): a third of a second at 30 fps. The decoder's
@@ -431,10 +424,10 @@ impl Config {
     }
 
     /// The name in [`MODELS`] of this configuration, if it has one: the
-    /// same parts, apart from those the `minute` preset adds to any model:
-    /// the pace as a condition ([`Parts::pace`]), feed rounds at the
-    /// temperature ([`Parts::rollouts_at_temperature`]) and the ceiling
-    /// over the floor ([`Parts::float_limit`]).
+    /// same parts, apart from those any model can be trained with: the
+    /// pace as a condition ([`Parts::pace`]), feed rounds at the
+    /// temperature ([`Parts::rollouts_at_temperature`]; both the `minute`
+    /// preset's) and the ceiling over the floor ([`Parts::float_limit`]).
     pub fn name(&self) -> Option<&'static str> {
         let plain = |p: &Parts| Parts {
             pace: false,

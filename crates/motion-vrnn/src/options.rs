@@ -15,10 +15,9 @@ pub enum Preset {
     Paper,
     /// The default of `cargo xtask train`: `standard` for a minute of
     /// motion ([`Preset::overrides`]): the feed rounds drawn at the sampling
-    /// temperature, conditioned on the category and the pace, generated
-    /// figures kept from floating ([`crate::model::FLOAT_LIMIT`]), the judge
-    /// over 14 stretches every 10 epochs (`docs/training.md`, "The judge and
-    /// the minute").
+    /// temperature, conditioned on the category and the pace, the judge over
+    /// 14 stretches every 10 epochs (`docs/training.md`, "The judge and the
+    /// minute").
     Minute,
 }
 
@@ -42,7 +41,6 @@ impl Preset {
                 condition: Some(ConditionOn::CategoryPace),
                 judge_stretches: Some(14),
                 judge_every: Some(10),
-                float_limit: Some(crate::model::FLOAT_LIMIT),
                 ..Overrides::default()
             },
             _ => Overrides::default(),
@@ -328,7 +326,7 @@ mod tests {
         let motion = || crate::model::Config::named("motion").unwrap_or_default();
         let minute = Preset::Minute.for_model(motion());
         // The same as `--rollouts-at-temperature --condition category+pace
-        // --judge-stretches 14 --judge-every 10 --float-limit 3` on `standard`.
+        // --judge-stretches 14 --judge-every 10` on `standard`.
         let mut flags = TrainConfig::standard();
         flags.model = motion();
         Overrides {
@@ -336,19 +334,28 @@ mod tests {
             condition: Some(ConditionOn::CategoryPace),
             judge_stretches: Some(14),
             judge_every: Some(10),
-            float_limit: Some(3.0),
             ..Default::default()
         }
         .apply(&mut flags);
         assert_eq!(minute, flags);
-        // `--float-limit 0` turns the ceiling off.
-        let mut off = minute.clone();
-        Overrides {
-            float_limit: Some(0.0),
-            ..Default::default()
-        }
-        .apply(&mut off);
-        assert_eq!(off.model.parts.float_limit, None);
+        // `--float-limit L` sets the ceiling, 0 turns it off again; the
+        // model keeps its name.
+        let mut held = minute.clone();
+        let limit = |l: f64, c: &mut TrainConfig| {
+            Overrides {
+                float_limit: Some(l),
+                ..Default::default()
+            }
+            .apply(c)
+        };
+        limit(3.0, &mut held);
+        assert_eq!(held.model.parts.float_limit, Some(3.0));
+        assert_eq!(held.model.name(), Some("motion"));
+        assert!(held.extras().ends_with(
+            ", generated figures at most 3 units off the floor, judged over 14 stretches"
+        ));
+        limit(0.0, &mut held);
+        assert_eq!(held, minute);
         assert!(minute.model.parts.rollouts_at_temperature && minute.model.parts.pace);
         // Still named as its model, for every model (the checkpoint's name).
         for (name, _) in crate::model::MODELS {
@@ -374,13 +381,11 @@ mod tests {
         assert_eq!(
             minute.extras(),
             " conditioned on the category and its pace (--condition none: neither), \
-             fed back at the sampling temperature, generated figures at most 3 units off \
-             the floor, judged over 14 stretches"
+             fed back at the sampling temperature, judged over 14 stretches"
         );
         assert_eq!(
             none.extras(),
-            ", fed back at the sampling temperature, generated figures at most 3 units off \
-             the floor, judged over 14 stretches"
+            ", fed back at the sampling temperature, judged over 14 stretches"
         );
         assert_eq!(
             TrainConfig::standard().extras(),
