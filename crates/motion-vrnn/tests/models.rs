@@ -352,6 +352,16 @@ fn rollouts_at_the_temperature_scale_the_fed_back_draws() {
     assert!(!json.contains("rollouts_at_temperature"));
 }
 
+/// What the generation-only settings are probed with: 3 start frames of 3
+/// motions, noise for 9 frames, and a batch whose losses must not change.
+fn generation_probe() -> (Tensor, Tensor, Tensor, Tensor) {
+    let (x, _) = batch(3, 9, 17);
+    let start = x.narrow(1, 0, 3).unwrap();
+    let e = noise(4, 0, 9, 3, 8, &Device::Cpu).unwrap();
+    let (x8, eps) = batch(2, 6, 3);
+    (start, e, x8, eps)
+}
+
 /// The foot lock's sharpness changes generated frames only, and only in a
 /// model with the foot lock: 1 is the model as trained, bit for bit; 4
 /// moves the generated root; the losses ignore it; it must be positive.
@@ -359,11 +369,8 @@ fn rollouts_at_the_temperature_scale_the_fed_back_draws() {
 fn contact_sharpness_changes_the_generated_foot_lock_only() {
     for (name, locks) in [("paper", false), ("motion", true)] {
         let mut m = model(name, 6);
-        let (x, _) = batch(3, 9, 17);
-        let start = x.narrow(1, 0, 3).unwrap();
-        let e = noise(4, 0, 9, 3, 8, &Device::Cpu).unwrap();
+        let (start, e, x8, eps) = generation_probe();
         let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        let (x8, eps) = batch(2, 6, 3);
         let loss = |m: &Trained| flat(m.model.losses(&x8, &eps, None, None).unwrap().recon);
         let plain = flat(m.model.sample(&e, Some(&start), None).unwrap());
         let l1 = loss(&m);
@@ -411,11 +418,8 @@ fn the_float_limit_holds_generated_figures_down() {
         &x.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
     );
     let mut m = init_model(&c, 6, &Device::Cpu).unwrap();
-    let (x, _) = batch(3, 9, 17);
-    let start = x.narrow(1, 0, 3).unwrap();
-    let e = noise(4, 0, 9, 3, 8, &Device::Cpu).unwrap();
+    let (start, e, x8, eps) = generation_probe();
     let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    let (x8, eps) = batch(2, 6, 3);
     let loss = |m: &Trained| flat(m.model.losses(&x8, &eps, None, None).unwrap().recon);
     let body = m.model.config().body.clone().unwrap();
     // The lowest joint's height (CMU units) of each frame of normalised rows.

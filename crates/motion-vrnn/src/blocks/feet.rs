@@ -98,15 +98,19 @@ pub fn ground(x: &Tensor, logits: &Tensor, body: &Stats) -> Result<Tensor> {
     let none = (1.0 - p.narrow(D::Minus1, 0, 1)?)?.mul(&(1.0 - p.narrow(D::Minus1, 1, 1)?)?)?;
     let y_lock = (wy.unwrap_or(wsum.zeros_like()?) / (&wsum + 1e-6)?)?;
     let shift = ((1.0 - none)? * (body.contact_height as f64 - y_lock)?)?;
-    // 1/std on the height columns, 0 elsewhere.
+    x + shift.broadcast_mul(&per_height(f, body, x.device())?)?
+}
+
+/// `1/std` on the `f` features' height columns (the root's and each
+/// joint's local y), 0 elsewhere: a height shift in CMU units, normalised.
+fn per_height(f: usize, body: &Stats, device: &candle_core::Device) -> Result<Tensor> {
     let mut per: Vec<f32> = vec![0.0; f];
     per[0] = 1.0 / body.std[0];
     for j in 0..BONES {
         let k = 1 + 3 * j + 1;
         per[k] = 1.0 / body.std[k];
     }
-    let per = Tensor::new(per.as_slice(), x.device())?;
-    x + shift.broadcast_mul(&per)?
+    Tensor::new(per.as_slice(), device)
 }
 
 /// Every height of normalised rows `x: […, input]` lowered by how far the
@@ -120,14 +124,7 @@ pub fn ceiling(x: &Tensor, limit: f64, body: &Stats) -> Result<Tensor> {
     }
     let low = Tensor::cat(&heights, D::Minus1)?.min_keepdim(D::Minus1)?;
     let shift = (low - limit)?.relu()?;
-    let mut per: Vec<f32> = vec![0.0; f];
-    per[0] = 1.0 / body.std[0];
-    for j in 0..BONES {
-        let k = 1 + 3 * j + 1;
-        per[k] = 1.0 / body.std[k];
-    }
-    let per = Tensor::new(per.as_slice(), x.device())?;
-    x - shift.broadcast_mul(&per)?
+    x - shift.broadcast_mul(&per_height(f, body, x.device())?)?
 }
 
 /// The foot lock: frame `cur` (normalised `[…, n, input]`) with the root's
