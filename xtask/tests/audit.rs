@@ -130,6 +130,14 @@ fn flagged_takes_rebuild_out_with_exclude() {
         .read("cmu-bvh-motionbuilder/07/07_12.bvh")
         .unwrap();
     std::fs::write(src.join("07_12.bvh"), bytes).unwrap();
+    // 01_14 starts on a climbing frame: its floor, taken from its first
+    // frame, is far above where it later stands.
+    let amc = mocap_ingest::source::Source::open(&common::shared("cmu-asfamc-sample.zip")).unwrap();
+    let mut r = amc.reader().unwrap();
+    for f in ["01.asf", "01_14.amc"] {
+        let bytes = r.read(&format!("all_asfamc/subjects/01/{f}")).unwrap();
+        std::fs::write(src.join(f), bytes).unwrap();
+    }
     let ds = tmp.path().join("ds");
     small_dataset(&src, &ds);
     let report = tmp.path().join("report");
@@ -141,9 +149,13 @@ fn flagged_takes_rebuild_out_with_exclude() {
         .map(|l| l.split('#').next().unwrap().trim())
         .filter(|l| !l.is_empty())
         .collect();
-    assert_eq!(ids, ["07_12"], "{flagged}");
+    assert_eq!(ids, ["01_14", "07_12"], "{flagged}");
     assert!(
         flagged.contains("07_12  # ") && flagged.contains("root jumps: 66"),
+        "{flagged}"
+    );
+    assert!(
+        flagged.contains("stands below its first frame's floor: lowest toe 25."),
         "{flagged}"
     );
 
@@ -164,9 +176,12 @@ fn flagged_takes_rebuild_out_with_exclude() {
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(clean.join("manifest.json")).unwrap())
             .unwrap();
-    assert_eq!(m["options"]["exclude"], serde_json::json!(["07_12"]));
+    assert_eq!(
+        m["options"]["exclude"],
+        serde_json::json!(["01_14", "07_12"])
+    );
     assert_eq!(m["counts"]["takes"], 6);
-    assert_eq!(m["counts"]["excluded"], 1);
+    assert_eq!(m["counts"]["excluded"], 2);
     let o = audit(&clean, Some(&src), &tmp.path().join("report2"));
     let t = text(&o);
     assert!(o.status.success(), "{t}");

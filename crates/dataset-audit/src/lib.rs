@@ -84,6 +84,15 @@ pub struct Thresholds {
     pub bone_cv: f64,
     /// A take whose lowest toe stays above this (units) never touches the floor.
     pub min_toe: f64,
+    /// A take whose lowest toe goes below this (units) stands under the
+    /// floor taken from its first frame: it starts raised (on a box, a
+    /// climbing frame) or the ground is uneven.
+    #[serde(default = "sink_toe")]
+    pub sink_toe: f64,
+}
+
+fn sink_toe() -> f64 {
+    -10.0
 }
 
 impl Default for Thresholds {
@@ -93,6 +102,7 @@ impl Default for Thresholds {
             max_speed: 12.0,
             bone_cv: 0.01,
             min_toe: 2.0,
+            sink_toe: sink_toe(),
         }
     }
 }
@@ -846,6 +856,13 @@ fn quality(frames: &LazyFrame, fps: f64, r: &mut Report) -> PolarsResult<()> {
             flags.push(format!(
                 "never touches the floor: lowest toe {:.1} units up",
                 q.min_toe
+            ));
+        }
+        if q.min_toe < th.sink_toe {
+            flags.push(format!(
+                "stands below its first frame's floor: lowest toe {:.1} units down \
+                 (the take starts raised, or the ground is uneven)",
+                -q.min_toe
             ));
         }
         r.takes.push(TakeQuality { flags, ..q });

@@ -75,8 +75,8 @@ pub fn markdown(r: &Report, seconds: f64) -> String {
     let th = &r.thresholds;
     let _ = writeln!(
         s,
-        "## Data quality\n\n{} takes, {} flagged (mean root speed > {} m/s, any frame > {} m/s, bone length std > {}% of its length, lowest toe > {} units).\n",
-        r.takes.len(), flagged.len(), th.mean_speed, th.max_speed, 100.0 * th.bone_cv, th.min_toe
+        "## Data quality\n\n{} takes, {} flagged (mean root speed > {} m/s, any frame > {} m/s, bone length std > {}% of its length, lowest toe > {} or < {} units).\n",
+        r.takes.len(), flagged.len(), th.mean_speed, th.max_speed, 100.0 * th.bone_cv, th.min_toe, th.sink_toe
     );
     let _ = writeln!(s, "| take | seconds | mean speed m/s | max speed m/s | bone var % | lowest toe | flags |\n|---|---|---|---|---|---|---|");
     for t in &flagged {
