@@ -35,16 +35,16 @@ pub struct RunArgs {
     /// (`eval`); read through the posterior, the motion starts at the last.
     #[arg(long, default_value_t = generate::CONTEXT)]
     pub context: usize,
-    /// Sampling temperature (scale of the prior's std), instead of the
-    /// model's own (`docs/training.md`; 1: the prior as trained).
+    /// Sampling temperature (the prior's std times this) instead of the model's own (1: as trained).
     #[arg(long)]
     pub temperature: Option<f64>,
-    /// Foot-lock sharpness when generating (contact logits times this),
-    /// instead of the model's own (`docs/training.md`; 1: as trained).
+    /// Foot-lock sharpness (contact logits times this) instead of the model's own (1: as trained).
     #[arg(long)]
     pub contact_sharpness: Option<f64>,
-    /// Generate in runs of this many frames, each restarting the model on
-    /// the last --context frames made, instead of the model's own (0: one run).
+    /// Keep generated figures' lowest joint at most this high above the floor (CMU units; 0: no limit).
+    #[arg(long)]
+    pub float_limit: Option<f64>,
+    /// Generate in runs of this many frames, each restarting on the last --context made (0: one run).
     #[arg(long)]
     pub restart: Option<usize>,
     /// Generate this category (`walk`, `run`, …; a model trained with
@@ -53,8 +53,7 @@ pub struct RunArgs {
     /// it continues; `none`: no category.
     #[arg(long)]
     pub category: Option<String>,
-    /// Guidance scale of --category (1: as trained; 0: no category; above
-    /// 1: further from the unconditioned model).
+    /// Guidance scale of --category (1: as trained; 0: none; above 1: further from the unconditioned).
     #[arg(long, default_value_t = motion_vrnn::generate::GUIDANCE)]
     pub guidance: f64,
 }
@@ -169,6 +168,7 @@ impl RunArgs {
             context: self.context,
             temperature: self.temperature,
             contact_sharpness: self.contact_sharpness,
+            float_limit: self.float_limit,
             restart: self.restart,
             category: self.category.clone(),
             guidance: self.guidance,
