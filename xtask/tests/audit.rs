@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{six_takes, small_dataset, xtask};
+use common::{extract, six_takes, small_dataset, xtask};
 use polars::prelude::{NamedFrom, SerReader};
 use std::path::Path;
 use std::process::Output;
@@ -123,20 +123,16 @@ fn flagged_takes_rebuild_out_with_exclude() {
     let tmp = tempfile::tempdir().unwrap();
     let src = six_takes(tmp.path());
     // 07_12 jumps (the audit flags it: the root moves ~60 m/s in one frame).
-    let bvh = mocap_ingest::source::Source::open(&common::shared("cmu-bvh-sample.zip")).unwrap();
-    let bytes = bvh
-        .reader()
-        .unwrap()
-        .read("cmu-bvh-motionbuilder/07/07_12.bvh")
-        .unwrap();
-    std::fs::write(src.join("07_12.bvh"), bytes).unwrap();
+    extract(
+        "cmu-bvh-sample.zip",
+        "cmu-bvh-motionbuilder/07/07_12.bvh",
+        &src,
+    );
     // 01_14 starts on a climbing frame: its floor, taken from its first
     // frame, is far above where it later stands.
-    let amc = mocap_ingest::source::Source::open(&common::shared("cmu-asfamc-sample.zip")).unwrap();
-    let mut r = amc.reader().unwrap();
     for f in ["01.asf", "01_14.amc"] {
-        let bytes = r.read(&format!("all_asfamc/subjects/01/{f}")).unwrap();
-        std::fs::write(src.join(f), bytes).unwrap();
+        let entry = format!("all_asfamc/subjects/01/{f}");
+        extract("cmu-asfamc-sample.zip", &entry, &src);
     }
     let ds = tmp.path().join("ds");
     small_dataset(&src, &ds);

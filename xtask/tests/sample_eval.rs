@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{six_takes, small_dataset, xtask};
+use common::{extract, six_takes, small_dataset, xtask};
 use std::path::Path;
 
 fn train(ds: &Path, run: &Path, extra: &[&str]) {
@@ -422,16 +422,6 @@ fn every_model_trains_samples_and_evaluates() {
             assert!(String::from_utf8_lossy(&bad.stderr).contains("float limit must be positive"));
         }
     }
-}
-
-/// Copy `entry` of a shared sample archive into `dir`, keeping its file name.
-fn extract(archive: &str, entry: &str, dir: &Path) -> std::path::PathBuf {
-    let source = mocap_ingest::source::Source::open(&common::shared(archive)).unwrap();
-    let bytes = source.reader().unwrap().read(entry).unwrap();
-    std::fs::create_dir_all(dir).unwrap();
-    let out = dir.join(Path::new(entry).file_name().unwrap());
-    std::fs::write(&out, bytes).unwrap();
-    out
 }
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {

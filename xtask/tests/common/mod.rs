@@ -15,6 +15,16 @@ pub fn shared(name: &str) -> PathBuf {
     integration_tests::sample(name)
 }
 
+/// Copy `entry` of a shared sample archive into `dir`, keeping its file name.
+pub fn extract(archive: &str, entry: &str, dir: &Path) -> PathBuf {
+    let source = mocap_ingest::source::Source::open(&shared(archive)).unwrap();
+    let bytes = source.reader().unwrap().read(entry).unwrap();
+    std::fs::create_dir_all(dir).unwrap();
+    let out = dir.join(Path::new(entry).file_name().unwrap());
+    std::fs::write(&out, bytes).unwrap();
+    out
+}
+
 /// Six short real takes (02_01 … 02_06, BVH) copied into `tmp/src`.
 pub fn six_takes(tmp: &Path) -> PathBuf {
     let source = mocap_ingest::source::Source::open(&shared("cmu-bvh-sample.zip")).unwrap();
