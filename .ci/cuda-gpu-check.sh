@@ -103,7 +103,7 @@ run() {
   train minute cpu --preset minute
   train paper-preset gpu --model paper --preset paper
   train paper-preset cpu --model paper --preset paper
-  # Sampling the default's run exercises the pace and the ceiling too.
+  # Sampling the default's run exercises the pace on the sampling path too.
   "$x" sample --run "$work/gpu/minute" --n 8 --frames 256 --out "$work/sample-gpu" >"$work/sample-gpu.log" 2>&1 || echo "sample on the GPU failed"
   CUDA_VISIBLE_DEVICES= "$x" sample --run "$work/gpu/minute" --n 8 --frames 256 --out "$work/sample-cpu" >"$work/sample-cpu.log" 2>&1 || echo "sample on the CPU failed"
   local rc=0

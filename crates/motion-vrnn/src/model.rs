@@ -673,6 +673,7 @@ impl Vrnn {
         }
         positive("kl_weight", c.parts.kl_weight)?;
         positive("temperature", c.parts.temperature)?;
+        positive("float limit", c.parts.float_limit)?;
         if c.parts.rounds() == 0 {
             candle_core::bail!("feed_rounds must be at least 1");
         }

@@ -169,7 +169,8 @@ pub struct Overrides {
     /// Feed rounds drawn at the sampling temperature (`true`: on).
     pub rollouts_at_temperature: bool,
     /// Generation keeps the lowest joint at most this high (CMU units;
-    /// [`crate::model::Parts::float_limit`]; 0: no limit).
+    /// [`crate::model::Parts::float_limit`]; 0: no limit; a negative one is
+    /// refused when the model is built).
     pub float_limit: Option<f64>,
 }
 
@@ -202,7 +203,7 @@ impl Overrides {
             parts.rollouts_at_temperature = true;
         }
         if let Some(v) = self.float_limit {
-            parts.float_limit = (v > 0.0).then_some(v);
+            parts.float_limit = (v != 0.0).then_some(v);
         }
         if let Some(v) = self.latent {
             cfg.model.latent = v;
@@ -356,6 +357,9 @@ mod tests {
         ));
         limit(0.0, &mut held);
         assert_eq!(held, minute);
+        // A negative one is kept, for the model to refuse (not read as none).
+        limit(-1.0, &mut held);
+        assert_eq!(held.model.parts.float_limit, Some(-1.0));
         assert!(minute.model.parts.rollouts_at_temperature && minute.model.parts.pace);
         // Still named as its model, for every model (the checkpoint's name).
         for (name, _) in crate::model::MODELS {

@@ -456,6 +456,9 @@ fn the_float_limit_holds_generated_figures_down() {
     assert!(held != plain, "the highest frame came down");
     assert_eq!(loss(&m), l1);
     assert!(m.model.set_float_limit(Some(-1.0)).is_err());
+    // Nor does a model build with one (`train --float-limit=-1`).
+    c.parts.float_limit = Some(-1.0);
+    assert!(init_model(&c, 6, &Device::Cpu).is_err());
 }
 
 /// The mask has the share asked for, and is a pure function of seed and step.
