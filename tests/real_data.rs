@@ -408,3 +408,77 @@ fn daz_files_read_and_follow_the_same_trajectory_as_cmu_copies() {
     );
     assert!(worst[4] < 2.0, "angular velocity {worst:?}");
 }
+
+/// The foot lock on real walks (subject 35's BVH takes), with the real toes
+/// as its contacts: counting every toe below 5 cm as planted, it moves the
+/// root slower than the capture did (a low toe still slides at toe-off and
+/// heel-strike, and pulls the root back); counting only the toes that also
+/// move slower than 0.3 m/s (`train --contact-speed 0.3`), it keeps the
+/// real speed (docs/training.md, "Planted means still").
+#[test]
+fn the_foot_lock_keeps_real_walks_at_their_speed_when_planted_toes_are_still() {
+    use candle_core::{Device, Tensor};
+    use motion_vrnn::blocks::feet::{foot_lock, real_slide, Stats, CONTACT_UNITS, TOES};
+    integration_tests::require_samples!();
+    let source = Source::open(&bvh_zip()).unwrap();
+    let takes: Vec<TakeInput> = source.takes().unwrap();
+    let walks: Vec<&TakeInput> = takes
+        .iter()
+        .filter(|t| t.take_id.starts_with("35_") && t.take_id.as_str() <= "35_16")
+        .collect();
+    assert_eq!(walks.len(), 16);
+    let f = features::NUM_FEATURES;
+    let (mean, std) = (vec![0f32; f], vec![1f32; f]);
+    let stats = Stats {
+        mean: &mean,
+        std: &std,
+        contact_height: 0.5,
+    };
+    let still = (0.3 / 30.0 / 0.0564) as f32;
+    // Speed of the locked root over the real speed, for both contacts.
+    let (mut real, mut low, mut slow) = (0.0f64, 0.0f64, 0.0f64);
+    for t in walks {
+        let clip = mocap_ingest::clip_from_motion(
+            &t.take_id,
+            &t.take_id,
+            &load(&source, t),
+            &Options::default(),
+        )
+        .unwrap();
+        let x: Vec<f32> = clip.features.iter().flatten().map(|&v| v as f32).collect();
+        let n = clip.features.len();
+        let raw = |r: usize, k: usize| x[r * f + k];
+        let speed = |v: &[f32]| -> f64 {
+            (1..n)
+                .map(|r| (v[r * f + f - 3] as f64).hypot(v[r * f + f - 2] as f64))
+                .sum()
+        };
+        real += speed(&x);
+        let xt = Tensor::from_vec(x.clone(), (1, n, f), &Device::Cpu).unwrap();
+        for (must_be_still, total) in [(false, &mut low), (true, &mut slow)] {
+            let logits: Vec<f32> = (0..n)
+                .flat_map(|r| {
+                    let cur = r.max(1);
+                    TOES.map(|toe| {
+                        let k = 1 + 3 * (toe - 1);
+                        let planted = raw(r, k + 1) < CONTACT_UNITS as f32
+                            && (!must_be_still
+                                || real_slide(raw, f, cur - 1, cur, k) < still * still);
+                        if planted {
+                            30.0
+                        } else {
+                            -30.0
+                        }
+                    })
+                })
+                .collect();
+            let l = Tensor::from_vec(logits, (1, n, 2), &Device::Cpu).unwrap();
+            let out = foot_lock(&xt, &l, &stats).unwrap();
+            *total += speed(&out.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+        }
+    }
+    let (low, slow) = (low / real, slow / real);
+    eprintln!("locked root speed ÷ real on 16 walks: toes below 5 cm {low:.3}, and slower than 0.3 m/s {slow:.3}");
+    assert!(low < 0.92, "{low}");
+    assert!((0.95..1.05).contains(&slow), "{slow}");
+}

@@ -33,16 +33,13 @@ pub struct TrainArgs {
     /// Override the model's KL weight after warm-up (1: the ELBO).
     #[arg(long)]
     pub kl_weight: Option<f64>,
-    /// Override the largest share of frames the model is fed back in
-    /// training (scheduled sampling; 0: off).
+    /// Override the largest share of frames fed back in training (scheduled sampling; 0: off).
     #[arg(long)]
     pub self_feed: Option<f64>,
-    /// Override the model's rounds of feeding back (each round's
-    /// predictions are made from the previous round's; 1: one step deep).
+    /// Override the model's rounds of feeding back (each from the previous round's; 1: one step deep).
     #[arg(long)]
     pub feed_rounds: Option<usize>,
-    /// Override the model's sampling temperature (scale of the prior's
-    /// std when generating, also for the checkpoint judge; 1: as trained).
+    /// Override the sampling temperature (the prior's std × this, also for the judge; 1: as trained).
     #[arg(long)]
     pub temperature: Option<f64>,
     /// Feed back in training at that temperature, as sampling draws (docs/training.md).
@@ -51,6 +48,9 @@ pub struct TrainArgs {
     /// Keep generated figures' lowest joint at most this high above the floor (CMU units; 0: no limit).
     #[arg(long)]
     pub float_limit: Option<f64>,
+    /// Planted toes (contact loss) must also move slower than this, m/s (0: height alone; docs/training.md).
+    #[arg(long)]
+    pub contact_speed: Option<f64>,
     /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
     #[arg(long)]
     pub latent: Option<usize>,
@@ -194,6 +194,7 @@ impl TrainArgs {
             condition_dropout: self.condition_dropout,
             rollouts_at_temperature: self.rollouts_at_temperature,
             float_limit: self.float_limit,
+            contact_speed: self.contact_speed,
         }
     }
 }

@@ -162,6 +162,13 @@ pub struct Parts {
     /// [`Config::categories`].
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub pace: bool,
+    /// The foot lock's contact loss counts a real toe as planted only where
+    /// it is low and also slides less than this in the world (m/s; None:
+    /// low is enough, as before). A toe below 5 cm still slides at toe-off
+    /// and heel-strike; taught to call it planted, the lock lets it pull
+    /// the root back (`docs/training.md`, "Planted means still").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_speed: Option<f64>,
 }
 
 /// The normalised features whose means make the pace ([`Parts::pace`]):
@@ -182,6 +189,11 @@ impl Parts {
     /// Nothing beyond the paper.
     pub fn is_paper(&self) -> bool {
         *self == Parts::default()
+    }
+
+    /// [`Parts::contact_speed`] in CMU units a frame at 30 fps.
+    pub fn still_units(&self) -> Option<f32> {
+        self.contact_speed.map(|v| (v / 30.0 / 0.0564) as f32)
     }
 
     /// Rounds of scheduled sampling ([`Parts::feed_rounds`]).
@@ -427,12 +439,14 @@ impl Config {
     /// same parts, apart from those any model can be trained with: the
     /// pace as a condition ([`Parts::pace`]), feed rounds at the
     /// temperature ([`Parts::rollouts_at_temperature`]; both the `minute`
-    /// preset's) and the ceiling over the floor ([`Parts::float_limit`]).
+    /// preset's), the ceiling over the floor ([`Parts::float_limit`]) and
+    /// planted toes that must be still ([`Parts::contact_speed`]).
     pub fn name(&self) -> Option<&'static str> {
         let plain = |p: &Parts| Parts {
             pace: false,
             rollouts_at_temperature: false,
             float_limit: None,
+            contact_speed: None,
             ..p.clone()
         };
         MODELS
@@ -674,6 +688,7 @@ impl Vrnn {
         positive("kl_weight", c.parts.kl_weight)?;
         positive("temperature", c.parts.temperature)?;
         positive("float limit", c.parts.float_limit)?;
+        positive("contact speed", c.parts.contact_speed)?;
         if c.parts.rounds() == 0 {
             candle_core::bail!("feed_rounds must be at least 1");
         }
@@ -1105,7 +1120,8 @@ impl MotionModel for Vrnn {
             }
         }
         if let (Some(body), Some(l)) = (&self.config.body, &logits) {
-            extra = (extra + (feet::contact_loss(l, x, &body.stats())? / b)?)?;
+            let still = self.config.parts.still_units();
+            extra = (extra + (feet::contact_loss(l, x, &body.stats(), still)? / b)?)?;
         }
         Ok(Losses {
             recon: (recon / b)?,

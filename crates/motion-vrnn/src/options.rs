@@ -172,6 +172,9 @@ pub struct Overrides {
     /// [`crate::model::Parts::float_limit`]; 0: no limit; a negative one is
     /// refused when the model is built).
     pub float_limit: Option<f64>,
+    /// Planted toes in the contact loss must also move slower than this
+    /// (m/s; [`crate::model::Parts::contact_speed`]; 0: height alone).
+    pub contact_speed: Option<f64>,
 }
 
 impl Overrides {
@@ -204,6 +207,9 @@ impl Overrides {
         }
         if let Some(v) = self.float_limit {
             parts.float_limit = (v != 0.0).then_some(v);
+        }
+        if let Some(v) = self.contact_speed {
+            parts.contact_speed = (v != 0.0).then_some(v);
         }
         if let Some(v) = self.latent {
             cfg.model.latent = v;
@@ -361,6 +367,26 @@ mod tests {
         limit(-1.0, &mut held);
         assert_eq!(held.model.parts.float_limit, Some(-1.0));
         assert!(minute.model.parts.rollouts_at_temperature && minute.model.parts.pace);
+        // `--contact-speed V` asks planted toes to be still; 0 turns it off.
+        let mut still = minute.clone();
+        let speed = |v: f64, c: &mut TrainConfig| {
+            Overrides {
+                contact_speed: Some(v),
+                ..Default::default()
+            }
+            .apply(c)
+        };
+        speed(0.3, &mut still);
+        assert_eq!(still.model.parts.contact_speed, Some(0.3));
+        assert_eq!(still.model.name(), Some("motion"));
+        assert!(still.extras().contains(", toes planted only below 0.3 m/s"));
+        let units = still.model.parts.still_units().unwrap_or_default();
+        assert!((units - 0.3 / 30.0 / 0.0564).abs() < 1e-6, "{units}");
+        speed(0.0, &mut still);
+        assert_eq!(
+            still.model.parts.contact_speed,
+            minute.model.parts.contact_speed
+        );
         // Still named as its model, for every model (the checkpoint's name).
         for (name, _) in crate::model::MODELS {
             let c = crate::model::Config::named(name).unwrap_or_default();

@@ -177,6 +177,9 @@ impl TrainConfig {
         if let Some(l) = self.model.parts.float_limit {
             s += &format!(", generated figures at most {l} units off the floor");
         }
+        if let Some(v) = self.model.parts.contact_speed {
+            s += &format!(", toes planted only below {v} m/s");
+        }
         if let Some(n) = self.judge_stretches {
             s += &format!(", judged over {n} stretches");
         }

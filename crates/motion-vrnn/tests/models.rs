@@ -461,6 +461,34 @@ fn the_float_limit_holds_generated_figures_down() {
     assert!(init_model(&c, 6, &Device::Cpu).is_err());
 }
 
+/// Planted toes that must be still (`contact_speed`) change the foot
+/// terms of the loss only: not the reconstruction, the KL or sampling; the
+/// speed must be positive.
+#[test]
+fn still_toes_change_the_foot_terms_only() {
+    let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let (start, e, x8, eps) = generation_probe();
+    let m = model("motion", 6);
+    let mut c = m.model.config().clone();
+    c.parts.contact_speed = Some(0.3);
+    let still = init_model(&c, 6, &Device::Cpu).unwrap();
+    let (a, b) = (
+        m.model.losses(&x8, &eps, None, None).unwrap(),
+        still.model.losses(&x8, &eps, None, None).unwrap(),
+    );
+    assert_eq!(flat(a.recon), flat(b.recon));
+    assert_eq!(flat(a.kl), flat(b.kl));
+    assert!(rel(&flat(a.extra), &flat(b.extra)) > 1e-3);
+    assert_eq!(
+        flat(m.model.sample(&e, Some(&start), None).unwrap()),
+        flat(still.model.sample(&e, Some(&start), None).unwrap())
+    );
+    for bad in [0.0, -0.3] {
+        c.parts.contact_speed = Some(bad);
+        assert!(init_model(&c, 6, &Device::Cpu).is_err(), "{bad}");
+    }
+}
+
 /// The mask has the share asked for, and is a pure function of seed and step.
 #[test]
 fn feed_masks_have_their_share() {

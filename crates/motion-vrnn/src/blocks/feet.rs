@@ -574,10 +574,16 @@ impl CustomOp2 for SlideOp {
 
 /// The contact loss of the foot lock: binary cross-entropy of the contact
 /// logits `[B, T, 2]` against the real contacts of `x: [B, T, F]` (1 where
-/// the real toe is below [`CONTACT_UNITS`]), summed over windows, frames and
-/// toes. `x` gets no gradient.
-pub fn contact_loss(logits: &Tensor, x: &Tensor, body: &Stats) -> Result<Tensor> {
-    let f = x.dim(D::Minus1)?;
+/// the real toe is below [`CONTACT_UNITS`] and, with `still`, also slides
+/// less than `still` units a frame in the world: [`real_slide`]), summed over
+/// windows, frames and toes. `x` gets no gradient.
+pub fn contact_loss(
+    logits: &Tensor,
+    x: &Tensor,
+    body: &Stats,
+    still: Option<f32>,
+) -> Result<Tensor> {
+    let (_, t, f) = x.dims3()?;
     if logits.elem_count() != (x.elem_count() / f.max(1)) * TOES.len() || body.mean.len() != f {
         candle_core::bail!(
             "contact_loss: logits {:?}, x {:?}",
@@ -585,21 +591,38 @@ pub fn contact_loss(logits: &Tensor, x: &Tensor, body: &Stats) -> Result<Tensor>
             x.shape()
         );
     }
+    let still = still.filter(|_| t > 1);
     if fused(logits) {
         return logits.contiguous()?.apply_op2(
             &x.contiguous()?,
             ContactOp {
                 mean: body.mean.to_vec(),
                 std: body.std.to_vec(),
+                frames: t,
+                still,
             },
         );
     }
+    let xr = match still {
+        Some(_) => Some(
+            x.broadcast_mul(&Tensor::new(body.std, x.device())?)?
+                .broadcast_add(&Tensor::new(body.mean, x.device())?)?,
+        ),
+        None => None,
+    };
     let cols: Vec<Tensor> = TOES
         .iter()
         .map(|&toe| {
-            raw_col(x, toe_col(toe) + 1, body)?
+            let k = toe_col(toe);
+            let down = raw_col(x, k + 1, body)?
                 .lt(CONTACT_UNITS)?
-                .to_dtype(DType::F32)
+                .to_dtype(DType::F32)?;
+            let (Some(v), Some(xr)) = (still, &xr) else {
+                return Ok(down);
+            };
+            // Frame 0 takes frame 1's slide.
+            let slow = still_toe(xr, k, v)?;
+            down * Tensor::cat(&[&slow.narrow(1, 0, 1)?, &slow], 1)?
         })
         .collect::<Result<_>>()?;
     let target = Tensor::cat(&cols, D::Minus1)?;
@@ -608,20 +631,63 @@ pub fn contact_loss(logits: &Tensor, x: &Tensor, body: &Stats) -> Result<Tensor>
     (soft - (logits * target)?)?.sum_all()
 }
 
+/// Reference: 1 where the real toe at column `k` of raw sequences
+/// `xr: [B, T, F]` slides less than `v` units from frame `t − 1` to `t`
+/// ([`real_slide`]), for frames `1..T`: `[B, T − 1, 1]`.
+fn still_toe(xr: &Tensor, k: usize, v: f32) -> Result<Tensor> {
+    let (_, t, f) = xr.dims3()?;
+    let col = |c: usize, from: usize| xr.narrow(2, c, 1)?.narrow(1, from, t - 1);
+    let th = col(f - 1, 1)?;
+    let (c, s) = (th.cos()?, th.sin()?);
+    let (lx, lz) = (col(k, 1)?, col(k + 2, 1)?);
+    let sx = (((col(f - 3, 1)? + (&c * &lx)?)? + (&s * &lz)?)? - col(k, 0)?)?;
+    let sz = (((col(f - 2, 1)? - (&s * &lx)?)? + (&c * &lz)?)? - col(k + 2, 0)?)?;
+    (sx.sqr()? + sz.sqr()?)?.lt(v * v)?.to_dtype(DType::F32)
+}
+
+/// The world-space horizontal slide, squared (units² a frame), of toe
+/// column `k` from frame `prev` to frame `cur` of the same sequence, read
+/// raw through `raw(frame, feature)` (`f` features, the root motion last):
+/// `v + R(θ)·p_cur − p_prev`.
+pub fn real_slide(
+    raw: impl Fn(usize, usize) -> f32,
+    f: usize,
+    prev: usize,
+    cur: usize,
+    k: usize,
+) -> f32 {
+    let th = raw(cur, f - 1);
+    let (c, s) = (th.cos(), th.sin());
+    let (lx, lz) = (raw(cur, k), raw(cur, k + 2));
+    let sx = raw(cur, f - 3) + c * lx + s * lz - raw(prev, k);
+    let sz = raw(cur, f - 2) - s * lx + c * lz - raw(prev, k + 2);
+    sx * sx + sz * sz
+}
+
 /// The fused [`contact_loss`]: inputs `(logits, x)`.
 struct ContactOp {
     mean: Vec<f32>,
     std: Vec<f32>,
+    /// Frames per sequence.
+    frames: usize,
+    /// The slide (units a frame) under which a low toe is planted.
+    still: Option<f32>,
 }
 
 impl ContactOp {
     /// Each `(logit index, logit, target)`.
     fn each(&self, logits: &[f32], x: &[f32], mut g: impl FnMut(usize, f32, f32)) {
         let f = self.mean.len();
-        for (r, row) in x.chunks_exact(f).enumerate() {
+        let raw = |r: usize, k: usize| x[r * f + k] * self.std[k] + self.mean[k];
+        for r in 0..x.len() / f {
+            // The slide from frame t − 1 to t (frame 0: frame 1's).
+            let cur = if r % self.frames == 0 { r + 1 } else { r };
             for (i, &toe) in TOES.iter().enumerate() {
-                let k = toe_col(toe) + 1;
-                let down = row[k] * self.std[k] + self.mean[k] < CONTACT_UNITS as f32;
+                let k = toe_col(toe);
+                let mut down = raw(r, k + 1) < CONTACT_UNITS as f32;
+                if let Some(v) = self.still {
+                    down &= real_slide(raw, f, cur - 1, cur, k) < v * v;
+                }
                 let at = r * TOES.len() + i;
                 g(at, logits[at], if down { 1.0 } else { 0.0 });
             }
