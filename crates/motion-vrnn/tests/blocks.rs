@@ -346,7 +346,7 @@ fn foot_slide_block() {
 
 #[test]
 fn contact_loss_block() {
-    let (b, t, f) = (2, 5, 58);
+    let (b, t, f) = (3, 6, 58);
     let logits = randn(25, &[b, t, 2], 2.0);
     let x = randn(26, &[b, t, f], 1.0);
     let mean: Vec<f32> = (0..f).map(|k| ((k * 5) % 3) as f32 - 1.0).collect();
@@ -356,24 +356,8 @@ fn contact_loss_block() {
         std: &std,
         contact_height: 0.7,
     };
-    check("contact loss", &[logits, x], &[0], 1e-5, 8, |t| {
-        blocks::feet::contact_loss(&t[0], &t[1], &stats, None).unwrap()
-    });
-}
-
-#[test]
-fn contact_loss_block_with_still_toes() {
-    let (b, t, f) = (3, 6, 58);
-    let logits = randn(27, &[b, t, 2], 2.0);
-    let x = randn(28, &[b, t, f], 1.0);
-    let mean: Vec<f32> = (0..f).map(|k| ((k * 5) % 3) as f32 - 1.0).collect();
-    let std: Vec<f32> = (0..f).map(|k| 0.5 + ((k * 3) % 4) as f32 * 0.5).collect();
-    let stats = blocks::feet::Stats {
-        mean: &mean,
-        std: &std,
-        contact_height: 0.7,
-    };
-    // A threshold that splits the low toes into still and sliding ones.
+    // With still toes: a threshold that splits the low toes into still and
+    // sliding ones.
     let v = values(&x);
     let raw = |r: usize, k: usize| v[r * f + k] * std[k] + mean[k];
     let (mut still, mut sliding) = (0, 0);
@@ -386,81 +370,57 @@ fn contact_loss_block_with_still_toes() {
         }
     }
     assert!(still > 0 && sliding > 0, "{still} still, {sliding} sliding");
-    check(
-        "contact loss, still toes",
-        &[logits, x],
-        &[0],
-        1e-5,
-        8,
-        |t| blocks::feet::contact_loss(&t[0], &t[1], &stats, Some(2.0)).unwrap(),
-    );
+    for v in [None, Some(2.0)] {
+        let inputs = [logits.clone(), x.clone()];
+        check("contact loss", &inputs, &[0], 1e-5, 8, |t| {
+            blocks::feet::contact_loss(&t[0], &t[1], &stats, v).unwrap()
+        });
+    }
 }
 
-#[test]
-fn a_low_toe_that_slides_is_not_planted() {
-    // Two frames, identity statistics, no root motion: the left toe stays
-    // low and still, the right toe stays low but moves 3 units forward.
-    // With a still threshold of 1 unit a frame only the left toe is
-    // planted: logits 0 give ln 2 per toe and frame either way, logits 2
-    // give softplus(2) − 2 planted and softplus(2) not.
-    let mut x = vec![0f32; 2 * 58];
-    x[58 + 1 + 3 * 7 + 2] = 3.0;
-    let x = Tensor::from_vec(x, (1, 2, 58), &Device::Cpu).unwrap();
-    let logits = Tensor::new(&[[[2f32, 2.0], [2.0, 2.0]]], &Device::Cpu).unwrap();
-    let (mean, std) = (vec![0f32; 58], vec![1f32; 58]);
-    let stats = blocks::feet::Stats {
-        mean: &mean,
-        std: &std,
-        contact_height: 0.0,
-    };
-    let sp = (1.0 + 2f32.exp()).ln();
-    for (still, want) in [
-        (None, 4.0 * (sp - 2.0)),
-        (Some(1.0), 2.0 * (sp - 2.0) + 2.0 * sp),
-    ] {
-        for reference in [false, true] {
-            let run = || blocks::feet::contact_loss(&logits, &x, &stats, still).unwrap();
-            let got = if reference {
-                blocks::reference(run)
-            } else {
-                run()
-            };
-            let got = got.to_scalar::<f32>().unwrap();
-            assert!(
-                (got - want).abs() < 1e-5,
-                "still {still:?}, reference {reference}: {got} vs {want}"
-            );
-        }
-    }
+/// A scalar block's value, fused and through its reference.
+fn both_paths(run: impl Fn() -> Tensor) -> [f32; 2] {
+    [run(), blocks::reference(&run)].map(|t| t.to_scalar::<f32>().unwrap())
 }
 
 #[test]
 fn contact_loss_by_hand() {
-    // One frame, identity statistics: left toe down (y = 0), right toe up
-    // (y = 9). Logits 0 and 2: ln 2 for the left toe, softplus(2) for the right.
-    let mut x = vec![0f32; 58];
-    x[1 + 3 * 3 + 1] = 0.0;
-    x[1 + 3 * 7 + 1] = 9.0;
-    let x = Tensor::from_vec(x, (1, 1, 58), &Device::Cpu).unwrap();
-    let logits = Tensor::new(&[[[0f32, 2.0]]], &Device::Cpu).unwrap();
     let (mean, std) = (vec![0f32; 58], vec![1f32; 58]);
     let stats = blocks::feet::Stats {
         mean: &mean,
         std: &std,
         contact_height: 0.0,
     };
-    let want = 2f32.ln() + (1.0 + 2f32.exp()).ln();
-    for reference in [false, true] {
-        let run = || blocks::feet::contact_loss(&logits, &x, &stats, None).unwrap();
-        let got = if reference {
-            blocks::reference(run)
-        } else {
-            run()
-        };
-        let got = got.to_scalar::<f32>().unwrap();
-        assert!(
-            (got - want).abs() < 1e-5,
-            "reference {reference}: {got} vs {want}"
-        );
+    let sp = |l: f32| (1.0 + l.exp()).ln();
+    // One frame, identity statistics: left toe down (y = 0), right toe up
+    // (y = 9). Logits 0 and 2: ln 2 for the left toe, softplus(2) for the right.
+    let mut x = vec![0f32; 58];
+    x[1 + 3 * 7 + 1] = 9.0;
+    let x = Tensor::from_vec(x, (1, 1, 58), &Device::Cpu).unwrap();
+    let logits = Tensor::new(&[[[0f32, 2.0]]], &Device::Cpu).unwrap();
+    let got = both_paths(|| blocks::feet::contact_loss(&logits, &x, &stats, None).unwrap());
+    for g in got {
+        assert!((g - (2f32.ln() + sp(2.0))).abs() < 1e-5, "{got:?}");
+    }
+    // A low toe that slides is not planted. Two frames, no root motion: the
+    // left toe stays low and still, the right toe stays low but moves 3
+    // units forward. Logits 2 give softplus(2) − 2 planted, softplus(2) not;
+    // with a still threshold of 1 unit a frame only the left toe is planted.
+    let mut x = vec![0f32; 2 * 58];
+    x[58 + 1 + 3 * 7 + 2] = 3.0;
+    let x = Tensor::from_vec(x, (1, 2, 58), &Device::Cpu).unwrap();
+    let logits = Tensor::new(&[[[2f32, 2.0], [2.0, 2.0]]], &Device::Cpu).unwrap();
+    let planted = sp(2.0) - 2.0;
+    for (still, want) in [
+        (None, 4.0 * planted),
+        (Some(1.0), 2.0 * planted + 2.0 * sp(2.0)),
+    ] {
+        let got = both_paths(|| blocks::feet::contact_loss(&logits, &x, &stats, still).unwrap());
+        for g in got {
+            assert!(
+                (g - want).abs() < 1e-5,
+                "still {still:?}: {got:?} vs {want}"
+            );
+        }
     }
 }
