@@ -418,7 +418,7 @@ fn daz_files_read_and_follow_the_same_trajectory_as_cmu_copies() {
 #[test]
 fn the_foot_lock_keeps_real_walks_at_their_speed_when_planted_toes_are_still() {
     use candle_core::{Device, Tensor};
-    use motion_vrnn::blocks::feet::{foot_lock, real_slide, Stats, CONTACT_UNITS, TOES};
+    use motion_vrnn::blocks::feet::{foot_lock, planted, Stats};
     integration_tests::require_samples!();
     let source = Source::open(&bvh_zip()).unwrap();
     let takes: Vec<TakeInput> = source.takes().unwrap();
@@ -434,7 +434,11 @@ fn the_foot_lock_keeps_real_walks_at_their_speed_when_planted_toes_are_still() {
         std: &std,
         contact_height: 0.5,
     };
-    let still = (0.3 / 30.0 / 0.0564) as f32;
+    let still = motion_vrnn::model::Parts {
+        contact_speed: Some(0.3),
+        ..Default::default()
+    }
+    .still_units();
     // Speed of the locked root over the real speed, for both contacts.
     let (mut real, mut low, mut slow) = (0.0f64, 0.0f64, 0.0f64);
     for t in walks {
@@ -456,21 +460,9 @@ fn the_foot_lock_keeps_real_walks_at_their_speed_when_planted_toes_are_still() {
         real += speed(&x);
         let xt = Tensor::from_vec(x.clone(), (1, n, f), &Device::Cpu).unwrap();
         for (must_be_still, total) in [(false, &mut low), (true, &mut slow)] {
+            let still = still.filter(|_| must_be_still);
             let logits: Vec<f32> = (0..n)
-                .flat_map(|r| {
-                    let cur = r.max(1);
-                    TOES.map(|toe| {
-                        let k = 1 + 3 * (toe - 1);
-                        let planted = raw(r, k + 1) < CONTACT_UNITS as f32
-                            && (!must_be_still
-                                || real_slide(raw, f, cur - 1, cur, k) < still * still);
-                        if planted {
-                            30.0
-                        } else {
-                            -30.0
-                        }
-                    })
-                })
+                .flat_map(|r| planted(raw, f, n, r, still).map(|p| if p { 30.0 } else { -30.0 }))
                 .collect();
             let l = Tensor::from_vec(logits, (1, n, 2), &Device::Cpu).unwrap();
             let out = foot_lock(&xt, &l, &stats).unwrap();

@@ -191,9 +191,11 @@ impl Parts {
         *self == Parts::default()
     }
 
-    /// [`Parts::contact_speed`] in CMU units a frame at 30 fps.
+    /// [`Parts::contact_speed`] in CMU units a frame (the dataset's 30 fps).
     pub fn still_units(&self) -> Option<f32> {
-        self.contact_speed.map(|v| (v / 30.0 / 0.0564) as f32)
+        let fps = motion_metrics::Options::default().fps;
+        self.contact_speed
+            .map(|v| (v / fps / motion_metrics::METRES_PER_UNIT) as f32)
     }
 
     /// Rounds of scheduled sampling ([`Parts::feed_rounds`]).

@@ -360,13 +360,12 @@ fn contact_loss_block() {
     // sliding ones.
     let v = values(&x);
     let raw = |r: usize, k: usize| v[r * f + k] * std[k] + mean[k];
+    let planted = |r, still| blocks::feet::planted(raw, f, t, r, still)[0];
     let (mut still, mut sliding) = (0, 0);
-    for r in (0..b * t).filter(|r| r % t > 0) {
-        if raw(r, 11) < blocks::feet::CONTACT_UNITS as f32 {
-            match blocks::feet::real_slide(raw, f, r - 1, r, 10) < 4.0 {
-                true => still += 1,
-                false => sliding += 1,
-            }
+    for r in (0..b * t).filter(|&r| planted(r, None)) {
+        match planted(r, Some(2.0)) {
+            true => still += 1,
+            false => sliding += 1,
         }
     }
     assert!(still > 0 && sliding > 0, "{still} still, {sliding} sliding");

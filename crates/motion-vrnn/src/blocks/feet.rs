@@ -189,36 +189,48 @@ pub fn foot_slide(x_hat: &Tensor, x: &Tensor, body: &Stats) -> Result<Tensor> {
             },
         );
     }
-    let (_, t, f) = x.dims3()?;
+    let (_, t, _) = x.dims3()?;
     if t < 2 {
         return Tensor::zeros((), DType::F32, x.device());
     }
-    let dev = x.device();
-    let mean = Tensor::new(body.mean, dev)?;
-    let std = Tensor::new(body.std, dev)?;
-    let raw = |v: &Tensor| v.broadcast_mul(&std)?.broadcast_add(&mean);
-    let (xh, xr) = (raw(x_hat)?, raw(x)?);
-    let col = |v: &Tensor, k: usize, from: usize| v.narrow(2, k, 1)?.narrow(1, from, t - 1);
-    let (vx, vz, th) = (
-        col(&xh, f - 3, 1)?,
-        col(&xh, f - 2, 1)?,
-        col(&xh, f - 1, 1)?,
-    );
-    let (c, s) = (th.cos()?, th.sin()?);
-    let mut total = Tensor::zeros((), DType::F32, dev)?;
-    for toe in TOES {
-        let k = 1 + 3 * (toe - 1);
-        let (lx, lz) = (col(&xh, k, 1)?, col(&xh, k + 2, 1)?);
-        let (px, pz) = (col(&xh, k, 0)?, col(&xh, k + 2, 0)?);
-        let sx = (((&vx + (&c * &lx)?)? + (&s * &lz)?)? - px)?;
-        let sz = (((&vz - (&s * &lx)?)? + (&c * &lz)?)? - pz)?;
-        let contact = col(&xr, k + 1, 1)?
+    let xr = raw_rows(x, body)?;
+    let mut total = Tensor::zeros((), DType::F32, x.device())?;
+    for (toe, slide) in TOES.iter().zip(toe_slides(&raw_rows(x_hat, body)?)?) {
+        let contact = xr
+            .narrow(2, toe_col(*toe) + 1, 1)?
+            .narrow(1, 1, t - 1)?
             .lt(CONTACT_UNITS)?
             .to_dtype(DType::F32)?;
-        let slide = ((sx.sqr()? + sz.sqr()?)? * contact)?.sum_all()?;
-        total = (total + slide)?;
+        total = (total + (slide * contact)?.sum_all()?)?;
     }
     Ok(total)
+}
+
+/// Reference: the raw (CMU-unit) values of normalised rows `v: [B, T, F]`.
+fn raw_rows(v: &Tensor, body: &Stats) -> Result<Tensor> {
+    let dev = v.device();
+    v.broadcast_mul(&Tensor::new(body.std, dev)?)?
+        .broadcast_add(&Tensor::new(body.mean, dev)?)
+}
+
+/// Reference: for each of [`TOES`], its squared horizontal slide in the
+/// world from frame `t − 1` to `t` of raw sequences `v: [B, T, F]`, for
+/// frames `1..T` (`[B, T − 1, 1]`): `s = v_t + R(θ_t)·p_t − p_{t−1}`, as
+/// [`real_slides`] computes it for one frame.
+fn toe_slides(v: &Tensor) -> Result<Vec<Tensor>> {
+    let (_, t, f) = v.dims3()?;
+    let col = |k: usize, from: usize| v.narrow(2, k, 1)?.narrow(1, from, t - 1);
+    let (vx, vz, th) = (col(f - 3, 1)?, col(f - 2, 1)?, col(f - 1, 1)?);
+    let (c, s) = (th.cos()?, th.sin()?);
+    TOES.iter()
+        .map(|&toe| {
+            let k = toe_col(toe);
+            let (lx, lz) = (col(k, 1)?, col(k + 2, 1)?);
+            let sx = (((&vx + (&c * &lx)?)? + (&s * &lz)?)? - col(k, 0)?)?;
+            let sz = (((&vz - (&s * &lx)?)? + (&c * &lz)?)? - col(k + 2, 0)?)?;
+            sx.sqr()? + sz.sqr()?
+        })
+        .collect()
 }
 
 /// The fused [`foot_lock`].
@@ -575,7 +587,7 @@ impl CustomOp2 for SlideOp {
 /// The contact loss of the foot lock: binary cross-entropy of the contact
 /// logits `[B, T, 2]` against the real contacts of `x: [B, T, F]` (1 where
 /// the real toe is below [`CONTACT_UNITS`] and, with `still`, also slides
-/// less than `still` units a frame in the world: [`real_slide`]), summed over
+/// less than `still` units a frame in the world: [`planted`]), summed over
 /// windows, frames and toes. `x` gets no gradient.
 pub fn contact_loss(
     logits: &Tensor,
@@ -603,25 +615,22 @@ pub fn contact_loss(
             },
         );
     }
-    let xr = match still {
-        Some(_) => Some(
-            x.broadcast_mul(&Tensor::new(body.std, x.device())?)?
-                .broadcast_add(&Tensor::new(body.mean, x.device())?)?,
-        ),
+    // With `still`, each toe's slides (frame 0 takes frame 1's).
+    let slides = match still {
+        Some(_) => Some(toe_slides(&raw_rows(x, body)?)?),
         None => None,
     };
     let cols: Vec<Tensor> = TOES
         .iter()
-        .map(|&toe| {
-            let k = toe_col(toe);
-            let down = raw_col(x, k + 1, body)?
+        .enumerate()
+        .map(|(i, &toe)| {
+            let down = raw_col(x, toe_col(toe) + 1, body)?
                 .lt(CONTACT_UNITS)?
                 .to_dtype(DType::F32)?;
-            let (Some(v), Some(xr)) = (still, &xr) else {
+            let (Some(v), Some(slides)) = (still, &slides) else {
                 return Ok(down);
             };
-            // Frame 0 takes frame 1's slide.
-            let slow = still_toe(xr, k, v)?;
+            let slow = slides[i].lt(v * v)?.to_dtype(DType::F32)?;
             down * Tensor::cat(&[&slow.narrow(1, 0, 1)?, &slow], 1)?
         })
         .collect::<Result<_>>()?;
@@ -631,37 +640,48 @@ pub fn contact_loss(
     (soft - (logits * target)?)?.sum_all()
 }
 
-/// Reference: 1 where the real toe at column `k` of raw sequences
-/// `xr: [B, T, F]` slides less than `v` units from frame `t − 1` to `t`
-/// ([`real_slide`]), for frames `1..T`: `[B, T − 1, 1]`.
-fn still_toe(xr: &Tensor, k: usize, v: f32) -> Result<Tensor> {
-    let (_, t, f) = xr.dims3()?;
-    let col = |c: usize, from: usize| xr.narrow(2, c, 1)?.narrow(1, from, t - 1);
-    let th = col(f - 1, 1)?;
-    let (c, s) = (th.cos()?, th.sin()?);
-    let (lx, lz) = (col(k, 1)?, col(k + 2, 1)?);
-    let sx = (((col(f - 3, 1)? + (&c * &lx)?)? + (&s * &lz)?)? - col(k, 0)?)?;
-    let sz = (((col(f - 2, 1)? - (&s * &lx)?)? + (&c * &lz)?)? - col(k + 2, 0)?)?;
-    (sx.sqr()? + sz.sqr()?)?.lt(v * v)?.to_dtype(DType::F32)
+/// For each of [`TOES`], whether the contact loss counts it planted in row
+/// `r` of sequences of `frames` rows read raw through `raw(row, feature)`
+/// (`f` features): below [`CONTACT_UNITS`] and, with `still` (units a
+/// frame), sliding less than that from the frame before ([`real_slides`];
+/// a sequence's first frame takes its second's slide; a one-frame sequence
+/// is judged by height alone).
+pub fn planted(
+    raw: impl Fn(usize, usize) -> f32 + Copy,
+    f: usize,
+    frames: usize,
+    r: usize,
+    still: Option<f32>,
+) -> [bool; TOES.len()] {
+    let slides = still.filter(|_| frames > 1).map(|v| {
+        let cur = if r % frames == 0 { r + 1 } else { r };
+        (real_slides(raw, f, cur - 1, cur), v)
+    });
+    std::array::from_fn(|i| {
+        let low = raw(r, toe_col(TOES[i]) + 1) < CONTACT_UNITS as f32;
+        low && slides.is_none_or(|(s, v)| s[i] < v * v)
+    })
 }
 
-/// The world-space horizontal slide, squared (units² a frame), of toe
-/// column `k` from frame `prev` to frame `cur` of the same sequence, read
-/// raw through `raw(frame, feature)` (`f` features, the root motion last):
+/// For each of [`TOES`], its squared horizontal slide in the world (units²
+/// a frame) from frame `prev` to frame `cur` of the same sequence, read raw
+/// through `raw(frame, feature)` (`f` features, the root motion last):
 /// `v + R(θ)·p_cur − p_prev`.
-pub fn real_slide(
+fn real_slides(
     raw: impl Fn(usize, usize) -> f32,
     f: usize,
     prev: usize,
     cur: usize,
-    k: usize,
-) -> f32 {
+) -> [f32; TOES.len()] {
     let th = raw(cur, f - 1);
     let (c, s) = (th.cos(), th.sin());
-    let (lx, lz) = (raw(cur, k), raw(cur, k + 2));
-    let sx = raw(cur, f - 3) + c * lx + s * lz - raw(prev, k);
-    let sz = raw(cur, f - 2) - s * lx + c * lz - raw(prev, k + 2);
-    sx * sx + sz * sz
+    TOES.map(|toe| {
+        let k = toe_col(toe);
+        let (lx, lz) = (raw(cur, k), raw(cur, k + 2));
+        let sx = raw(cur, f - 3) + c * lx + s * lz - raw(prev, k);
+        let sz = raw(cur, f - 2) - s * lx + c * lz - raw(prev, k + 2);
+        sx * sx + sz * sz
+    })
 }
 
 /// The fused [`contact_loss`]: inputs `(logits, x)`.
@@ -680,14 +700,10 @@ impl ContactOp {
         let f = self.mean.len();
         let raw = |r: usize, k: usize| x[r * f + k] * self.std[k] + self.mean[k];
         for r in 0..x.len() / f {
-            // The slide from frame t − 1 to t (frame 0: frame 1's).
-            let cur = if r % self.frames == 0 { r + 1 } else { r };
-            for (i, &toe) in TOES.iter().enumerate() {
-                let k = toe_col(toe);
-                let mut down = raw(r, k + 1) < CONTACT_UNITS as f32;
-                if let Some(v) = self.still {
-                    down &= real_slide(raw, f, cur - 1, cur, k) < v * v;
-                }
+            for (i, down) in planted(raw, f, self.frames, r, self.still)
+                .into_iter()
+                .enumerate()
+            {
                 let at = r * TOES.len() + i;
                 g(at, logits[at], if down { 1.0 } else { 0.0 });
             }
