@@ -36,7 +36,7 @@ pub struct TrainArgs {
     /// Override the largest share of frames fed back in training (scheduled sampling; 0: off).
     #[arg(long)]
     pub self_feed: Option<f64>,
-    /// Override the model's rounds of feeding back (each from the previous round's; 1: one step deep).
+    /// Override the model's rounds of feeding back (each from the previous round's; 1: one step deep; 0: every depth, one pass in time order).
     #[arg(long)]
     pub feed_rounds: Option<usize>,
     /// Override the sampling temperature (the prior's std × this, also for the judge; 1: as trained).
@@ -55,8 +55,8 @@ pub struct TrainArgs {
     #[arg(long)]
     pub latent: Option<usize>,
     /// Starting point for every option below (docs/training.md, "Presets").
-    /// `minute`: `standard` with --rollouts-at-temperature --condition
-    /// category+pace --judge-stretches 14 --judge-every 10;
+    /// `minute`: `standard` with --feed-rounds 0 --rollouts-at-temperature
+    /// --condition category+pace --judge-stretches 14 --judge-every 10;
     /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
     /// stopping 60; `quick`: 30 epochs; `paper`: the paper (batch 1,600).
     #[arg(long, default_value = "minute")]

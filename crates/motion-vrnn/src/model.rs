@@ -26,11 +26,12 @@
 //!   more rounds; `temperature`: the prior's spread when sampling;
 //! - the rest (output filter, feet) on [`Parts`].
 
-use crate::blocks::feet::{self, ground, lock, TOES};
+use crate::blocks::feet::{self, ground, lock, FootLockOp, TOES};
 use crate::blocks::scan::ScanDims;
 use crate::blocks::skeleton::{bone_lengths, place, row_bone_lengths, BONES};
 use crate::blocks::{
-    self, add_rows, filter, gaussian_kl, latent_lstm, linear, lstm_cell, squared_error, Act,
+    self, add_rows, filter, gaussian_kl, latent_lstm, linear, lstm_cell, rollout, squared_error,
+    Act,
 };
 use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::VarBuilder;
@@ -120,7 +121,10 @@ pub struct Parts {
     /// Rounds of scheduled sampling (None: 1). In round `r + 1` the
     /// recurrence that predicts the fed-back frames reads round `r`'s, so a
     /// run of consecutive fed frames is rolled out up to this many steps
-    /// deep on the model's own motion.
+    /// deep on the model's own motion. `Some(0)`: to every depth, in one
+    /// pass in time order (each fed frame from a state that read every
+    /// earlier one, as sampling makes it; `docs/training.md`, "Fed back to
+    /// every depth").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub feed_rounds: Option<usize>,
     /// Sampling temperature: the scale of the prior's standard deviation
@@ -198,7 +202,8 @@ impl Parts {
             .map(|v| (v / fps / motion_metrics::METRES_PER_UNIT) as f32)
     }
 
-    /// Rounds of scheduled sampling ([`Parts::feed_rounds`]).
+    /// Rounds of scheduled sampling ([`Parts::feed_rounds`]; 0: every
+    /// depth, in one pass).
     pub fn rounds(&self) -> usize {
         self.feed_rounds.unwrap_or(1)
     }
@@ -439,13 +444,14 @@ impl Config {
 
     /// The name in [`MODELS`] of this configuration, if it has one: the
     /// same parts, apart from those any model can be trained with: the
-    /// pace as a condition ([`Parts::pace`]), feed rounds at the
-    /// temperature ([`Parts::rollouts_at_temperature`]; both the `minute`
-    /// preset's), the ceiling over the floor ([`Parts::float_limit`]) and
+    /// pace as a condition ([`Parts::pace`]), how deep and at what
+    /// temperature they are fed back ([`Parts::feed_rounds`],
+    /// [`Parts::rollouts_at_temperature`]; the `minute` preset's), the ceiling over the floor ([`Parts::float_limit`]) and
     /// planted toes that must be still ([`Parts::contact_speed`]).
     pub fn name(&self) -> Option<&'static str> {
         let plain = |p: &Parts| Parts {
             pace: false,
+            feed_rounds: None,
             rollouts_at_temperature: false,
             float_limit: None,
             contact_speed: None,
@@ -691,9 +697,6 @@ impl Vrnn {
         positive("temperature", c.parts.temperature)?;
         positive("float limit", c.parts.float_limit)?;
         positive("contact speed", c.parts.contact_speed)?;
-        if c.parts.rounds() == 0 {
-            candle_core::bail!("feed_rounds must be at least 1");
-        }
         let gaussian = |input: usize, vb: VarBuilder| -> Result<[Lin; 2]> {
             Ok([
                 Lin::new(input, c.latent, vb.pp("mean"))?,
@@ -1010,8 +1013,9 @@ impl Vrnn {
     /// it (latent drawn from the prior, `N(0, I)` at the first step, with
     /// the same noise; the whole decoder). The state comes from the real
     /// frames in the first round, and from the previous round's frames in
-    /// each later one ([`Parts::feed_rounds`]). No gradient flows through
-    /// the replacement.
+    /// each later one ([`Parts::feed_rounds`]; with 0, to every depth in one
+    /// pass: [`Vrnn::fed_in_sequence`]). No gradient flows through the
+    /// replacement.
     fn fed_back(
         &self,
         x: &Tensor,
@@ -1031,6 +1035,12 @@ impl Vrnn {
             Some(tau) if self.config.parts.rollouts_at_temperature => (eps * tau)?,
             _ => eps.clone(),
         };
+        if self.config.parts.rounds() == 0 {
+            return match blocks::fused(x) {
+                true => self.fed_fused(x, feat, eps, &e, mask, lengths, bias),
+                false => self.fed_in_sequence(x, feat, eps, &e, mask, lengths, bias),
+            };
+        }
         let round = |fed: Option<&Tensor>| -> Result<Tensor> {
             let s = self.scan(feat, fed, eps, bias)?;
             let p = plus(prior.forward(&s.h, Act::None)?, bias.map(|b| &b.prior))?;
@@ -1048,6 +1058,177 @@ impl Vrnn {
             fed = round(Some(&fed))?;
         }
         Ok(fed)
+    }
+
+    /// [`Vrnn::fed_back`] to every depth (`feed_rounds` 0): one pass in
+    /// time order, each fed frame predicted from a state that read every
+    /// earlier fed frame, as sampling would make it. It gives what rounds
+    /// give once there are as many rounds as fed frames in a window, at the
+    /// cost of one. `eps`: the posterior's noise, `e`: the prior's.
+    #[allow(clippy::too_many_arguments)]
+    fn fed_in_sequence(
+        &self,
+        x: &Tensor,
+        feat: &Tensor,
+        eps: &Tensor,
+        e: &Tensor,
+        mask: &Tensor,
+        lengths: Option<&Tensor>,
+        bias: Option<&Bias>,
+    ) -> Result<Tensor> {
+        let c = &self.config;
+        let t = x.dim(1)?;
+        // Everything time-major, so a step's rows are one contiguous slice.
+        let steps = |v: &Tensor| v.transpose(0, 1)?.contiguous();
+        let (xs, fs, eq, ep) = (steps(x)?, steps(feat)?, steps(eps)?, steps(e)?);
+        let ms = steps(&mask.unsqueeze(D::Minus1)?)?;
+        let ls = lengths.map(steps).transpose()?;
+        // The condition's rows, one per sequence.
+        let bias = match bias {
+            Some(b) => Some(Bias {
+                pre: b.pre.squeeze(1)?,
+                prior: b.prior.squeeze(1)?,
+                decoder: b.decoder.squeeze(1)?,
+            }),
+            None => None,
+        };
+        let bias = bias.as_ref();
+        let (enc_bias, gates_bias) = match bias {
+            Some(b) => (
+                Some(b.pre.narrow(1, 0, 2 * c.latent)?),
+                Some(b.pre.narrow(1, 2 * c.latent, 4 * c.hidden)?),
+            ),
+            None => (None, None),
+        };
+        let prior = stacked(&self.prior[0], &self.prior[1])?;
+        let encoder = stacked(&self.encoder[0], &self.encoder[1])?;
+        let gates_in = Lin {
+            w: self.w_ih.clone(),
+            b: (&self.b_ih + &self.b_hh)?,
+        };
+        let no_bias = self.b_hh.zeros_like()?;
+        let (rho, rho_out) = (c.parts.latent_filter, c.parts.output_filter);
+        let filtered = |prev: &Option<Tensor>, v: Tensor, rho: f64| match prev {
+            Some(p) if rho > 0.0 => filter::step(p, &v, rho),
+            _ => Ok(v),
+        };
+        let mut h = Tensor::zeros((x.dim(0)?, c.hidden), DType::F32, x.device())?;
+        let mut cell = h.clone();
+        let (mut zf, mut of, mut prev): (Option<Tensor>, Option<Tensor>, Option<Tensor>) =
+            (None, None, None);
+        let mut fed = Vec::with_capacity(t);
+        for step in 0..t {
+            let (xt, ft) = (xs.get(step)?, fs.get(step)?);
+            // The posterior reads the real frame; its z goes to the LSTM.
+            let q = plus(
+                encoder.forward(&Tensor::cat(&[&ft, &h], 1)?, Act::None)?,
+                enc_bias.as_ref(),
+            )?;
+            let zq = draw(&q, &eq.get(step)?, c.latent)?;
+            // The prior's draw makes the own frame (its noise alone at first).
+            let zp = match step {
+                0 => ep.get(0)?,
+                _ => draw(
+                    &plus(prior.forward(&h, Act::None)?, bias.map(|b| &b.prior))?,
+                    &ep.get(step)?,
+                    c.latent,
+                )?,
+            };
+            let zd = filtered(&zf, zp, rho)?;
+            let o = filtered(&of, self.decode_raw(&zd, &h, bias)?, rho_out)?;
+            let l = ls.as_ref().map(|l| l.get(step)).transpose()?;
+            let mut own = self.finish(&o, l.as_ref())?;
+            if let (Some(logits), Some(body)) = (self.contact_logits(&o)?, &c.body) {
+                let one = |t: &Tensor| t.unsqueeze(1);
+                let g = ground(&one(&own)?, &one(&logits)?, &body.stats())?;
+                own = match &prev {
+                    Some(p) => lock(&one(p)?, &g, &one(&logits)?, &body.stats())?,
+                    None => g,
+                }
+                .squeeze(1)?;
+            }
+            let xf = (&xt + (&own - &xt)?.broadcast_mul(&ms.get(step)?)?)?;
+            let gates = (gates_in
+                .forward(&Tensor::cat(&[&self.features(&xf)?, &zq], 1)?, Act::None)?
+                + linear(&h, &self.w_hh, &no_bias, Act::None)?)?;
+            let (hn, cn) = lstm_cell(&plus(gates, gates_bias.as_ref())?, &cell)?;
+            (h, cell) = (hn, cn);
+            (zf, of, prev) = (Some(zd), Some(o), Some(own));
+            fed.push(xf);
+        }
+        Tensor::stack(&fed, 1)
+    }
+
+    /// [`Vrnn::fed_in_sequence`] as one fused block ([`rollout::fed`]).
+    #[allow(clippy::too_many_arguments)]
+    fn fed_fused(
+        &self,
+        x: &Tensor,
+        feat: &Tensor,
+        eps: &Tensor,
+        e: &Tensor,
+        mask: &Tensor,
+        lengths: Option<&Tensor>,
+        bias: Option<&Bias>,
+    ) -> Result<Tensor> {
+        let c = &self.config;
+        let v = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
+        let dense = |l: &Lin| -> Result<rollout::Dense> {
+            let (out, inp) = l.w.dims2()?;
+            Ok(rollout::Dense {
+                w: v(&l.w)?,
+                b: v(&l.b)?,
+                inp,
+                out,
+            })
+        };
+        let body = c.body.as_ref();
+        let net = rollout::Net {
+            hidden: c.hidden,
+            latent: c.latent,
+            input: c.input,
+            phi: [dense(&self.phi_x[0])?, dense(&self.phi_x[1])?],
+            encoder: dense(&stacked(&self.encoder[0], &self.encoder[1])?)?,
+            prior: dense(&stacked(&self.prior[0], &self.prior[1])?)?,
+            decoder: [
+                dense(&self.decoder[0])?,
+                dense(&self.decoder[1])?,
+                dense(&self.decoder[2])?,
+            ],
+            w_ih: v(&self.w_ih)?,
+            w_hh: v(&self.w_hh)?,
+            b_gates: v(&(&self.b_ih + &self.b_hh)?)?,
+            rho: c.parts.latent_filter as f32,
+            rho_out: c.parts.output_filter as f32,
+            lock: body
+                .filter(|_| contacts(c) > 0)
+                .map(|b| FootLockOp::new(&b.stats())),
+            place: body
+                .filter(|_| c.parts.skeleton && lengths.is_some())
+                .map(|b| (b.mean.clone(), b.std.clone())),
+        };
+        let (b, t, f) = x.dims3()?;
+        let (xv, fv, ev, pv, mv) = (v(x)?, v(feat)?, v(eps)?, v(e)?, v(mask)?);
+        let lv = lengths.map(v).transpose()?;
+        let cv = bias
+            .map(|b| Ok::<_, candle_core::Error>((v(&b.pre)?, v(&b.prior)?, v(&b.decoder)?)))
+            .transpose()?;
+        let shard = rollout::Shard {
+            b,
+            t,
+            x: &xv,
+            feat: &fv,
+            eps: &ev,
+            e: &pv,
+            mask: &mv,
+            lengths: lv.as_deref(),
+            cond: cv.as_ref().map(|(pre, prior, decoder)| rollout::Cond {
+                pre,
+                prior,
+                decoder,
+            }),
+        };
+        Tensor::from_vec(rollout::fed(&net, &shard), (b, t, f), x.device())
     }
 
     /// `x − o` over the pose features of a real frame `x: [B, input]` and

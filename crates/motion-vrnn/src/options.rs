@@ -14,8 +14,8 @@ pub enum Preset {
     /// [`TrainConfig::paper`], exactly the paper.
     Paper,
     /// The default of `cargo xtask train`: `standard` for a minute of
-    /// motion ([`Preset::overrides`]): the feed rounds drawn at the sampling
-    /// temperature, conditioned on the category and the pace, the judge over
+    /// motion ([`Preset::overrides`]): fed back to every depth in one pass,
+    /// drawn at the sampling temperature, conditioned on the category and the pace, the judge over
     /// 14 stretches every 10 epochs (`docs/training.md`, "The judge and the
     /// minute").
     Minute,
@@ -37,6 +37,7 @@ impl Preset {
     pub fn overrides(self) -> Overrides {
         match self {
             Preset::Minute => Overrides {
+                feed_rounds: Some(0),
                 rollouts_at_temperature: true,
                 condition: Some(ConditionOn::CategoryPace),
                 judge_stretches: Some(14),
@@ -133,7 +134,7 @@ pub struct Overrides {
     pub kl_weight: Option<f64>,
     /// Largest share of frames fed back in training (0: off).
     pub self_feed: Option<f64>,
-    /// Rounds of feeding back (1: one step deep).
+    /// Rounds of feeding back (1: one step deep; 0: every depth).
     pub feed_rounds: Option<usize>,
     /// Sampling temperature (1: the prior as trained).
     pub temperature: Option<f64>,
@@ -332,11 +333,12 @@ mod tests {
     fn the_minute_preset_is_the_standard_one_with_its_options_for_any_model() {
         let motion = || crate::model::Config::named("motion").unwrap_or_default();
         let minute = Preset::Minute.for_model(motion());
-        // The same as `--rollouts-at-temperature --condition category+pace
-        // --judge-stretches 14 --judge-every 10` on `standard`.
+        // The same as `--feed-rounds 0 --rollouts-at-temperature --condition
+        // category+pace --judge-stretches 14 --judge-every 10` on `standard`.
         let mut flags = TrainConfig::standard();
         flags.model = motion();
         Overrides {
+            feed_rounds: Some(0),
             rollouts_at_temperature: true,
             condition: Some(ConditionOn::CategoryPace),
             judge_stretches: Some(14),
@@ -411,11 +413,11 @@ mod tests {
         assert_eq!(
             minute.extras(),
             " conditioned on the category and its pace (--condition none: neither), \
-             fed back at the sampling temperature, judged over 14 stretches"
+             fed back to every depth, fed back at the sampling temperature, judged over 14 stretches"
         );
         assert_eq!(
             none.extras(),
-            ", fed back at the sampling temperature, judged over 14 stretches"
+            ", fed back to every depth, fed back at the sampling temperature, judged over 14 stretches"
         );
         assert_eq!(
             TrainConfig::standard().extras(),

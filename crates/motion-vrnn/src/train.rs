@@ -171,6 +171,9 @@ impl TrainConfig {
                 false => " conditioned on the category (--condition none: without)",
             };
         }
+        if self.model.parts.self_feed > 0.0 && self.model.parts.rounds() == 0 {
+            s += ", fed back to every depth";
+        }
         if self.model.parts.rollouts_at_temperature {
             s += ", fed back at the sampling temperature";
         }

@@ -280,8 +280,47 @@ fn a_second_round_rolls_out_runs_of_fed_frames() {
             "{real:?} {a:?} {b:?}"
         );
     }
-    c.parts.feed_rounds = Some(0);
-    assert!(init_model(&c, 5, &Device::Cpu).is_err());
+}
+
+/// Feeding back to every depth in one pass (`feed_rounds` 0) gives what
+/// rounds give once there are as many rounds as fed frames, and differs
+/// from two rounds; on the default's parts (filters, skeleton, feet, the
+/// category and its pace, rollouts at the temperature).
+#[test]
+fn one_pass_in_time_order_is_every_round() {
+    let mut c = model("motion", 5).model.config().clone();
+    c.categories = CATEGORIES.map(String::from).to_vec();
+    c.parts.pace = true;
+    c.parts.rollouts_at_temperature = true;
+    let with = |rounds: usize| {
+        let mut c = c.clone();
+        c.parts.feed_rounds = Some(rounds);
+        let m = init_model(&c, 5, &Device::Cpu).unwrap();
+        randomise(&m);
+        for (_, v) in named_vars(&m.varmap) {
+            v.set(&(v.as_tensor() * 3.0).unwrap()).unwrap();
+        }
+        m
+    };
+    let (x, eps) = batch(3, 8, 21);
+    let mask: [f32; 8] = [0., 1., 1., 0., 1., 1., 1., 0.];
+    let f = Tensor::from_vec(mask.repeat(3), (3, 8), &Device::Cpu).unwrap();
+    let losses = |m: &Trained| {
+        let cond = ask(m, &[Some(1), None, Some(3)], 1.0);
+        let l = m.model.losses(&x, &eps, Some(&f), Some(&cond)).unwrap();
+        [&l.recon, &l.kl, &l.extra].map(|v| v.to_scalar::<f32>().unwrap() as f64)
+    };
+    let (all, five, two) = (losses(&with(0)), losses(&with(5)), losses(&with(2)));
+    // The fused pass against its reference, the model's step loop in
+    // candle ops (as every block runs off the CPU).
+    let slow = blocks::reference(|| losses(&with(0)));
+    eprintln!("DEBUG {all:?} {five:?} {slow:?}");
+    for k in 0..3 {
+        let d = |a: f64, b: f64| ((a - b) / a).abs();
+        assert!(d(all[k], five[k]) < 1e-5, "{all:?} vs {five:?}");
+        assert!(d(all[k], slow[k]) < 1e-5, "{all:?} vs {slow:?}");
+        assert!(d(all[k], two[k]) > 1e-4, "{all:?} vs {two:?}");
+    }
 }
 
 /// The temperature scales the prior's noise after the real start frames and
@@ -510,8 +549,15 @@ fn feed_masks_have_their_share() {
 /// 3 threads (shards are summed in order).
 #[test]
 fn results_do_not_depend_on_the_thread_count() {
-    for name in ["paper", "motion"] {
-        let m = model(name, 6);
+    for name in ["paper", "motion", "every depth"] {
+        let m = match name {
+            "every depth" => {
+                let mut c = model("motion", 6).model.config().clone();
+                c.parts.feed_rounds = Some(0);
+                init_model(&c, 6, &Device::Cpu).unwrap()
+            }
+            _ => model(name, 6),
+        };
         let (x, eps) = batch(70, 10, 13);
         let run = |threads: usize| {
             rayon::ThreadPoolBuilder::new()

@@ -54,14 +54,9 @@ pub fn foot_lock(x: &Tensor, logits: &Tensor, body: &Stats) -> Result<Tensor> {
         candle_core::bail!("foot_lock: {f} features, statistics of {}", body.mean.len());
     }
     if fused(x) {
-        return x.contiguous()?.apply_op2(
-            &logits.contiguous()?,
-            FootLockOp {
-                mean: body.mean.to_vec(),
-                std: body.std.to_vec(),
-                contact_height: body.contact_height,
-            },
-        );
+        return x
+            .contiguous()?
+            .apply_op2(&logits.contiguous()?, FootLockOp::new(body));
     }
     let g = ground(x, logits, body)?;
     if t < 2 {
@@ -233,8 +228,9 @@ fn toe_slides(v: &Tensor) -> Result<Vec<Tensor>> {
         .collect()
 }
 
-/// The fused [`foot_lock`].
-struct FootLockOp {
+/// The fused [`foot_lock`] (and its rows for [`super::rollout`]).
+#[derive(Clone, Debug)]
+pub(crate) struct FootLockOp {
     mean: Vec<f32>,
     std: Vec<f32>,
     contact_height: f32,
@@ -255,7 +251,7 @@ fn toe_col(toe: usize) -> usize {
 }
 
 /// What grounding computes for one row, kept for its backward.
-struct Grounded {
+pub(crate) struct Grounded {
     p: [f32; 2],
     y: [f32; 2],
     w: f32,
@@ -264,7 +260,7 @@ struct Grounded {
 }
 
 /// What the lock computes for one row, kept for its backward.
-struct Locked {
+pub(crate) struct Locked {
     p: [f32; 2],
     c: f32,
     s: f32,
@@ -277,12 +273,20 @@ struct Locked {
 }
 
 impl FootLockOp {
+    pub(crate) fn new(body: &Stats) -> FootLockOp {
+        FootLockOp {
+            mean: body.mean.to_vec(),
+            std: body.std.to_vec(),
+            contact_height: body.contact_height,
+        }
+    }
+
     fn raw(&self, row: &[f32], k: usize) -> f32 {
         row[k] * self.std[k] + self.mean[k]
     }
 
     /// Ground one row in place.
-    fn ground_row(&self, row: &mut [f32], logits: &[f32]) -> Grounded {
+    pub(crate) fn ground_row(&self, row: &mut [f32], logits: &[f32]) -> Grounded {
         let p = [sigmoid(logits[0]), sigmoid(logits[1])];
         let y = TOES.map(|toe| self.raw(row, toe_col(toe) + 1));
         let w = p[0] + p[1];
@@ -302,7 +306,7 @@ impl FootLockOp {
     }
 
     /// Lock row `cur` (grounded) against the grounded `prev`, in place.
-    fn lock_row(&self, prev: &[f32], cur: &mut [f32], logits: &[f32]) -> Locked {
+    pub(crate) fn lock_row(&self, prev: &[f32], cur: &mut [f32], logits: &[f32]) -> Locked {
         let f = cur.len();
         let (kx, kz, kt) = (f - 3, f - 2, f - 1);
         let p = [sigmoid(logits[0]), sigmoid(logits[1])];

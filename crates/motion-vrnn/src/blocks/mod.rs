@@ -34,6 +34,7 @@ pub mod filter;
 mod kernels;
 pub mod kl;
 pub mod linear;
+pub(crate) mod rollout;
 pub mod scan;
 pub mod skeleton;
 

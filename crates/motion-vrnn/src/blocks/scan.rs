@@ -141,7 +141,7 @@ pub fn lstm_cell(gates: &Tensor, c: &Tensor) -> Result<(Tensor, Tensor)> {
 
 /// Gate activations in place: sigmoid for i, f, o; tanh for g.
 #[inline(always)]
-fn activate(g: &mut [f32], h: usize) {
+pub(crate) fn activate(g: &mut [f32], h: usize) {
     let (ifg, o) = g.split_at_mut(3 * h);
     let (i_f, gg) = ifg.split_at_mut(2 * h);
     i_f.iter_mut().for_each(|v| *v = sigmoid(*v));
@@ -153,7 +153,7 @@ fn activate(g: &mut [f32], h: usize) {
 /// gates `[i | f | g | o]`. Two plain loops over equal-length slices, so
 /// both vectorise (a zip of five did not, and `tanh` ran one lane at a time).
 #[inline(always)]
-fn cell_rows(g: &[f32], c_prev: &[f32], c: &mut [f32], tc: &mut [f32], h: usize) {
+pub(crate) fn cell_rows(g: &[f32], c_prev: &[f32], c: &mut [f32], tc: &mut [f32], h: usize) {
     let (gi, gf, gg) = (&g[..h], &g[h..2 * h], &g[2 * h..3 * h]);
     let (c, tc, c_prev) = (&mut c[..h], &mut tc[..h], &c_prev[..h]);
     for k in 0..h {

@@ -303,7 +303,7 @@ simd_fn! {
 /// [`fk_row`] and the renormalisation, operation for operation (the same
 /// bits; tested against them).
 #[allow(clippy::needless_range_loop)] // lane loops index several arrays alike
-fn place_rows(o: &[f32], len: &[f32], mean: &[f32], std: &[f32]) -> Vec<f32> {
+pub(crate) fn place_rows(o: &[f32], len: &[f32], mean: &[f32], std: &[f32]) -> Vec<f32> {
     let f = mean.len();
     let mut out = o.to_vec();
     let rows = o.len() / f.max(1);
