@@ -187,6 +187,7 @@ pub fn fed(net: &Net, sh: &Shard) -> Vec<f32> {
     let gain = |rho: f32| (1.0 - rho * rho).max(0.0).sqrt();
     let (g_in, g_out) = (gain(net.rho), gain(net.rho_out));
     let (mut hs, mut cs, mut tc) = (vec![0.0f32; b * h], vec![0.0f32; b * h], vec![0.0f32; h]);
+    let mut cp = vec![0.0f32; h];
     let (mut zf, mut of) = (vec![0.0f32; b * z], vec![0.0f32; b * width]);
     let (mut own, mut prev) = (vec![0.0f32; b * f], vec![0.0f32; b * f]);
     let mut out = vec![0.0f32; n * f];
@@ -293,8 +294,8 @@ pub fn fed(net: &Net, sh: &Shard) -> Vec<f32> {
         for s in 0..b {
             let gr = &mut g[s * h4..(s + 1) * h4];
             activate(gr, h);
-            let c_prev = cs[s * h..(s + 1) * h].to_vec();
-            cell_rows(gr, &c_prev, &mut cs[s * h..(s + 1) * h], &mut tc, h);
+            cp.copy_from_slice(&cs[s * h..(s + 1) * h]);
+            cell_rows(gr, &cp, &mut cs[s * h..(s + 1) * h], &mut tc, h);
             for k in 0..h {
                 hs[s * h + k] = gr[3 * h + k] * tc[k];
             }
