@@ -1092,26 +1092,8 @@ impl Vrnn {
             }),
             None => None,
         };
-        let bias = bias.as_ref();
-        let (enc_bias, gates_bias) = match bias {
-            Some(b) => (
-                Some(b.pre.narrow(1, 0, 2 * c.latent)?),
-                Some(b.pre.narrow(1, 2 * c.latent, 4 * c.hidden)?),
-            ),
-            None => (None, None),
-        };
-        let prior = stacked(&self.prior[0], &self.prior[1])?;
-        let encoder = stacked(&self.encoder[0], &self.encoder[1])?;
-        let gates_in = Lin {
-            w: self.w_ih.clone(),
-            b: (&self.b_ih + &self.b_hh)?,
-        };
-        let no_bias = self.b_hh.zeros_like()?;
+        let st = Steps::new(self, bias.as_ref())?;
         let (rho, rho_out) = (c.parts.latent_filter, c.parts.output_filter);
-        let filtered = |prev: &Option<Tensor>, v: Tensor, rho: f64| match prev {
-            Some(p) if rho > 0.0 => filter::step(p, &v, rho),
-            _ => Ok(v),
-        };
         let mut h = Tensor::zeros((x.dim(0)?, c.hidden), DType::F32, x.device())?;
         let mut cell = h.clone();
         let (mut zf, mut of, mut prev): (Option<Tensor>, Option<Tensor>, Option<Tensor>) =
@@ -1120,43 +1102,38 @@ impl Vrnn {
         for step in 0..t {
             let (xt, ft) = (xs.get(step)?, fs.get(step)?);
             // The posterior reads the real frame; its z goes to the LSTM.
-            let q = plus(
-                encoder.forward(&Tensor::cat(&[&ft, &h], 1)?, Act::None)?,
-                enc_bias.as_ref(),
-            )?;
-            let zq = draw(&q, &eq.get(step)?, c.latent)?;
+            let zq = draw(&st.posterior(&ft, &h)?, &eq.get(step)?, c.latent)?;
             // The prior's draw makes the own frame (its noise alone at first).
-            let zp = match step {
-                0 => ep.get(0)?,
-                _ => draw(
-                    &plus(prior.forward(&h, Act::None)?, bias.map(|b| &b.prior))?,
-                    &ep.get(step)?,
-                    c.latent,
-                )?,
-            };
-            let zd = filtered(&zf, zp, rho)?;
-            let o = filtered(&of, self.decode_raw(&zd, &h, bias)?, rho_out)?;
+            let zp = st.prior_draw(&h, ep.get(step)?, step == 0)?;
+            let zd = step_filter(&zf, zp, rho)?;
+            let o = step_filter(&of, self.decode_raw(&zd, &h, st.bias)?, rho_out)?;
             let l = ls.as_ref().map(|l| l.get(step)).transpose()?;
             let mut own = self.finish(&o, l.as_ref())?;
-            if let (Some(logits), Some(body)) = (self.contact_logits(&o)?, &c.body) {
-                let one = |t: &Tensor| t.unsqueeze(1);
-                let g = ground(&one(&own)?, &one(&logits)?, &body.stats())?;
-                own = match &prev {
-                    Some(p) => lock(&one(p)?, &g, &one(&logits)?, &body.stats())?,
-                    None => g,
-                }
-                .squeeze(1)?;
+            if let Some(logits) = self.contact_logits(&o)? {
+                own = self.lock_step(prev.as_ref(), &own, &logits)?;
             }
             let xf = (&xt + (&own - &xt)?.broadcast_mul(&ms.get(step)?)?)?;
-            let gates = (gates_in
-                .forward(&Tensor::cat(&[&self.features(&xf)?, &zq], 1)?, Act::None)?
-                + linear(&h, &self.w_hh, &no_bias, Act::None)?)?;
-            let (hn, cn) = lstm_cell(&plus(gates, gates_bias.as_ref())?, &cell)?;
-            (h, cell) = (hn, cn);
+            (h, cell) = st.advance(&self.features(&xf)?, &zq, &h, &cell)?;
             (zf, of, prev) = (Some(zd), Some(o), Some(own));
             fed.push(xf);
         }
         Tensor::stack(&fed, 1)
+    }
+
+    /// One frame `x: [B, input]` through the foot lock, given its contact
+    /// logits: grounded, then locked against the frame before it where
+    /// there is one (`prev`). As it is without a body.
+    fn lock_step(&self, prev: Option<&Tensor>, x: &Tensor, logits: &Tensor) -> Result<Tensor> {
+        let Some(body) = &self.config.body else {
+            return Ok(x.clone());
+        };
+        let one = |t: &Tensor| t.unsqueeze(1);
+        let g = ground(&one(x)?, &one(logits)?, &body.stats())?;
+        match prev {
+            Some(p) => lock(&one(p)?, &g, &one(logits)?, &body.stats())?,
+            None => g,
+        }
+        .squeeze(1)
     }
 
     /// [`Vrnn::fed_in_sequence`] as one fused block ([`rollout::fed`]).
@@ -1336,22 +1313,7 @@ impl MotionModel for Vrnn {
         let (t, b, _) = eps.dims3()?;
         let dev = eps.device();
         let bias = self.bias(cond, start)?;
-        let bias = bias.as_ref();
-        // The condition's share of the posterior and of the gates.
-        let (enc_bias, gates_bias) = match bias {
-            Some(b) => (
-                Some(b.pre.narrow(1, 0, 2 * c.latent)?),
-                Some(b.pre.narrow(1, 2 * c.latent, 4 * c.hidden)?),
-            ),
-            None => (None, None),
-        };
-        let prior = stacked(&self.prior[0], &self.prior[1])?;
-        let encoder = stacked(&self.encoder[0], &self.encoder[1])?;
-        let gates_in = Lin {
-            w: self.w_ih.clone(),
-            b: (&self.b_ih + &self.b_hh)?,
-        };
-        let no_bias = self.b_hh.zeros_like()?;
+        let st = Steps::new(self, bias.as_ref())?;
         let k = start.map_or(Ok(0), |s| s.dim(1))?;
         // Bone lengths: the start frames' own skeleton, else the training
         // set's mean skeleton.
@@ -1369,13 +1331,6 @@ impl MotionModel for Vrnn {
         let mut frames = Vec::with_capacity(t);
         // The last start frame's pose minus the decoder's ([`SEAM_FRAMES`]).
         let mut seam: Option<Tensor> = None;
-        // One step of a causal filter with pole `rho` (the first value as is).
-        let step_filter = |prev: &Option<Tensor>, x: Tensor, rho: f64| -> Result<Tensor> {
-            match prev {
-                Some(p) if rho > 0.0 => filter::step(p, &x, rho),
-                _ => Ok(x),
-            }
-        };
         for step in 0..t {
             let e = eps.get(step)?;
             // A real start frame is read through the posterior; later frames
@@ -1384,28 +1339,21 @@ impl MotionModel for Vrnn {
                 Some(s) => {
                     let x = s.narrow(1, step, 1)?.squeeze(1)?;
                     let feat = self.features(&x)?;
-                    let q = encoder.forward(&Tensor::cat(&[&feat, &h], 1)?, Act::None)?;
-                    let q = plus(q, enc_bias.as_ref())?;
-                    (Some((x, feat)), draw(&q, &e, c.latent)?)
+                    let z = draw(&st.posterior(&feat, &h)?, &e, c.latent)?;
+                    (Some((x, feat)), z)
                 }
                 None => {
                     let e = match c.parts.temperature {
                         Some(tau) => (e * tau)?,
                         None => e,
                     };
-                    match step {
-                        0 => (None, e),
-                        _ => {
-                            let p = plus(prior.forward(&h, Act::None)?, bias.map(|b| &b.prior))?;
-                            (None, draw(&p, &e, c.latent)?)
-                        }
-                    }
+                    (None, st.prior_draw(&h, e, step == 0)?)
                 }
             };
             let zd = step_filter(&zf, z.clone(), rho)?;
             // The decoder runs on start frames too, so its output filter has
             // the history it has in training.
-            let o = step_filter(&of, self.decode_raw(&zd, &h, bias)?, rho_out)?;
+            let o = step_filter(&of, self.decode_raw(&zd, &h, st.bias)?, rho_out)?;
             let (x, feat) = match real {
                 Some(r) => {
                     if step + 1 == k {
@@ -1419,16 +1367,12 @@ impl MotionModel for Vrnn {
                         _ => o.clone(),
                     };
                     let mut x = self.finish(&eased, bones.as_ref())?;
-                    if let (Some(prev), Some(l), Some(body)) =
-                        (frames.last(), self.contact_logits(&o)?, &self.config.body)
-                    {
+                    if let (Some(prev), Some(l)) = (frames.last(), self.contact_logits(&o)?) {
                         let l = match c.parts.contact_sharpness {
                             Some(k) => (l * k)?,
                             None => l,
                         };
-                        let one = |t: &Tensor| t.unsqueeze(1);
-                        let g = ground(&one(&x)?, &one(&l)?, &body.stats())?;
-                        x = lock(&one(prev)?, &g, &one(&l)?, &body.stats())?.squeeze(1)?;
+                        x = self.lock_step(Some(prev), &x, &l)?;
                     }
                     if let (Some(limit), Some(body)) = (c.parts.float_limit, &self.config.body) {
                         x = feet::ceiling(&x, limit, &body.stats())?;
@@ -1439,15 +1383,97 @@ impl MotionModel for Vrnn {
             };
             zf = Some(zd);
             of = Some(o);
-            let gates = (gates_in.forward(&Tensor::cat(&[&feat, &z], 1)?, Act::None)?
-                + linear(&h, &self.w_hh, &no_bias, Act::None)?)?;
-            let gates = plus(gates, gates_bias.as_ref())?;
-            let (hn, cn) = lstm_cell(&gates, &cell)?;
-            h = hn;
-            cell = cn;
+            (h, cell) = st.advance(&feat, &z, &h, &cell)?;
             frames.push(x);
         }
         Tensor::stack(&frames, 1)
+    }
+}
+
+/// One step of the recurrence at a time, for the step loops (sampling,
+/// feeding back to every depth): the weights as each step reads them.
+struct Steps<'a> {
+    /// The condition's rows (`[B or 1, ·]`).
+    bias: Option<&'a Bias>,
+    /// The condition's share of the posterior and of the gates.
+    enc_bias: Option<Tensor>,
+    gates_bias: Option<Tensor>,
+    prior: Lin,
+    encoder: Lin,
+    gates_in: Lin,
+    w_hh: Tensor,
+    no_bias: Tensor,
+    latent: usize,
+}
+
+impl<'a> Steps<'a> {
+    fn new(m: &Vrnn, bias: Option<&'a Bias>) -> Result<Steps<'a>> {
+        let (z, h) = (m.config.latent, m.config.hidden);
+        let (enc_bias, gates_bias) = match bias {
+            Some(b) => (
+                Some(b.pre.narrow(1, 0, 2 * z)?),
+                Some(b.pre.narrow(1, 2 * z, 4 * h)?),
+            ),
+            None => (None, None),
+        };
+        Ok(Steps {
+            bias,
+            enc_bias,
+            gates_bias,
+            prior: stacked(&m.prior[0], &m.prior[1])?,
+            encoder: stacked(&m.encoder[0], &m.encoder[1])?,
+            gates_in: Lin {
+                w: m.w_ih.clone(),
+                b: (&m.b_ih + &m.b_hh)?,
+            },
+            w_hh: m.w_hh.clone(),
+            no_bias: m.b_hh.zeros_like()?,
+            latent: z,
+        })
+    }
+
+    /// The posterior's `[μ | logit σ]` from features `feat` and state `h`.
+    fn posterior(&self, feat: &Tensor, h: &Tensor) -> Result<Tensor> {
+        let q = self
+            .encoder
+            .forward(&Tensor::cat(&[feat, h], 1)?, Act::None)?;
+        plus(q, self.enc_bias.as_ref())
+    }
+
+    /// The prior's draw from state `h` with noise `e` (`e` itself at the
+    /// first step: `N(0, I)`).
+    fn prior_draw(&self, h: &Tensor, e: Tensor, first: bool) -> Result<Tensor> {
+        if first {
+            return Ok(e);
+        }
+        let p = plus(
+            self.prior.forward(h, Act::None)?,
+            self.bias.map(|b| &b.prior),
+        )?;
+        draw(&p, &e, self.latent)
+    }
+
+    /// The LSTM's state `(h, c)` after reading `[feat, z]` from `(h, cell)`.
+    fn advance(
+        &self,
+        feat: &Tensor,
+        z: &Tensor,
+        h: &Tensor,
+        cell: &Tensor,
+    ) -> Result<(Tensor, Tensor)> {
+        let gates = (self
+            .gates_in
+            .forward(&Tensor::cat(&[feat, z], 1)?, Act::None)?
+            + linear(h, &self.w_hh, &self.no_bias, Act::None)?)?;
+        lstm_cell(&plus(gates, self.gates_bias.as_ref())?, cell)
+    }
+}
+
+/// One step of a causal filter with pole `rho` (the first value as is).
+fn step_filter(prev: &Option<Tensor>, x: Tensor, rho: f64) -> Result<Tensor> {
+    match prev {
+        Some(p) if rho > 0.0 => filter::step(p, &x, rho),
+        _ => Ok(x),
     }
 }
 
