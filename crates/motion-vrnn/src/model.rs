@@ -1036,9 +1036,18 @@ impl Vrnn {
             _ => eps.clone(),
         };
         if self.config.parts.rounds() == 0 {
+            let i = Feed {
+                x,
+                feat,
+                eps,
+                e: &e,
+                mask,
+                lengths,
+                bias,
+            };
             return match blocks::fused(x) {
-                true => self.fed_fused(x, feat, eps, &e, mask, lengths, bias),
-                false => self.fed_in_sequence(x, feat, eps, &e, mask, lengths, bias),
+                true => self.fed_fused(&i),
+                false => self.fed_in_sequence(&i),
             };
         }
         let round = |fed: Option<&Tensor>| -> Result<Tensor> {
@@ -1065,26 +1074,16 @@ impl Vrnn {
     /// earlier fed frame, as sampling would make it. It gives what rounds
     /// give once there are as many rounds as fed frames in a window, at the
     /// cost of one. `eps`: the posterior's noise, `e`: the prior's.
-    #[allow(clippy::too_many_arguments)]
-    fn fed_in_sequence(
-        &self,
-        x: &Tensor,
-        feat: &Tensor,
-        eps: &Tensor,
-        e: &Tensor,
-        mask: &Tensor,
-        lengths: Option<&Tensor>,
-        bias: Option<&Bias>,
-    ) -> Result<Tensor> {
-        let c = &self.config;
+    fn fed_in_sequence(&self, i: &Feed) -> Result<Tensor> {
+        let (c, x, lengths) = (&self.config, i.x, i.lengths);
         let t = x.dim(1)?;
         // Everything time-major, so a step's rows are one contiguous slice.
         let steps = |v: &Tensor| v.transpose(0, 1)?.contiguous();
-        let (xs, fs, eq, ep) = (steps(x)?, steps(feat)?, steps(eps)?, steps(e)?);
-        let ms = steps(&mask.unsqueeze(D::Minus1)?)?;
+        let (xs, fs, eq, ep) = (steps(x)?, steps(i.feat)?, steps(i.eps)?, steps(i.e)?);
+        let ms = steps(&i.mask.unsqueeze(D::Minus1)?)?;
         let ls = lengths.map(steps).transpose()?;
         // The condition's rows, one per sequence.
-        let bias = match bias {
+        let bias = match i.bias {
             Some(b) => Some(Bias {
                 pre: b.pre.squeeze(1)?,
                 prior: b.prior.squeeze(1)?,
@@ -1137,18 +1136,8 @@ impl Vrnn {
     }
 
     /// [`Vrnn::fed_in_sequence`] as one fused block ([`rollout::fed`]).
-    #[allow(clippy::too_many_arguments)]
-    fn fed_fused(
-        &self,
-        x: &Tensor,
-        feat: &Tensor,
-        eps: &Tensor,
-        e: &Tensor,
-        mask: &Tensor,
-        lengths: Option<&Tensor>,
-        bias: Option<&Bias>,
-    ) -> Result<Tensor> {
-        let c = &self.config;
+    fn fed_fused(&self, i: &Feed) -> Result<Tensor> {
+        let (c, x, lengths) = (&self.config, i.x, i.lengths);
         let v = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
         let dense = |l: &Lin| -> Result<rollout::Dense> {
             let (out, inp) = l.w.dims2()?;
@@ -1185,9 +1174,10 @@ impl Vrnn {
                 .map(|b| (b.mean.clone(), b.std.clone())),
         };
         let (b, t, f) = x.dims3()?;
-        let (xv, fv, ev, pv, mv) = (v(x)?, v(feat)?, v(eps)?, v(e)?, v(mask)?);
+        let (xv, fv, ev, pv, mv) = (v(x)?, v(i.feat)?, v(i.eps)?, v(i.e)?, v(i.mask)?);
         let lv = lengths.map(v).transpose()?;
-        let cv = bias
+        let cv = i
+            .bias
             .map(|b| Ok::<_, candle_core::Error>((v(&b.pre)?, v(&b.prior)?, v(&b.decoder)?)))
             .transpose()?;
         let shard = rollout::Shard {
@@ -1388,6 +1378,20 @@ impl MotionModel for Vrnn {
         }
         Tensor::stack(&frames, 1)
     }
+}
+
+/// What feeding back to every depth reads ([`Vrnn::fed_in_sequence`]): the
+/// real frames `[B, T, input]`, their features, the posterior's noise and
+/// the prior's (`[B, T, Z]`), the mask `[B, T]`, the bone lengths and the
+/// condition's rows (over time).
+struct Feed<'a> {
+    x: &'a Tensor,
+    feat: &'a Tensor,
+    eps: &'a Tensor,
+    e: &'a Tensor,
+    mask: &'a Tensor,
+    lengths: Option<&'a Tensor>,
+    bias: Option<&'a Bias>,
 }
 
 /// One step of the recurrence at a time, for the step loops (sampling,
