@@ -446,8 +446,9 @@ impl Config {
     /// same parts, apart from those any model can be trained with: the
     /// pace as a condition ([`Parts::pace`]), how deep and at what
     /// temperature they are fed back ([`Parts::feed_rounds`],
-    /// [`Parts::rollouts_at_temperature`]; the `minute` preset's), the ceiling over the floor ([`Parts::float_limit`]) and
-    /// planted toes that must be still ([`Parts::contact_speed`]).
+    /// [`Parts::rollouts_at_temperature`]; the `minute` preset's), the
+    /// ceiling over the floor ([`Parts::float_limit`]) and planted toes
+    /// that must be still ([`Parts::contact_speed`]).
     pub fn name(&self) -> Option<&'static str> {
         let plain = |p: &Parts| Parts {
             pace: false,
