@@ -646,6 +646,15 @@ impl Bias {
             decoder: self.decoder.unsqueeze(1)?,
         })
     }
+
+    /// Rows made [`Bias::over_time`] back to one per sequence.
+    fn per_sequence(&self) -> Result<Bias> {
+        Ok(Bias {
+            pre: self.pre.squeeze(1)?,
+            prior: self.prior.squeeze(1)?,
+            decoder: self.decoder.squeeze(1)?,
+        })
+    }
 }
 
 /// `x` plus the bias where there is one.
@@ -1026,10 +1035,6 @@ impl Vrnn {
         lengths: Option<&Tensor>,
         bias: Option<&Bias>,
     ) -> Result<Tensor> {
-        let t = x.dim(1)?;
-        let prior = stacked(&self.prior[0], &self.prior[1])?;
-        let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
-        // One round: the recurrence reads `fed` (the real frames when None).
         // The prior's draws at the sampling temperature where asked
         // ([`Parts::rollouts_at_temperature`]); the posterior's noise as is.
         let e = match self.config.parts.temperature {
@@ -1051,6 +1056,10 @@ impl Vrnn {
                 false => self.fed_in_sequence(&i),
             };
         }
+        let t = x.dim(1)?;
+        let prior = stacked(&self.prior[0], &self.prior[1])?;
+        let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
+        // One round: the recurrence reads `fed` (the real frames when None).
         let round = |fed: Option<&Tensor>| -> Result<Tensor> {
             let s = self.scan(feat, fed, eps, bias)?;
             let p = plus(prior.forward(&s.h, Act::None)?, bias.map(|b| &b.prior))?;
@@ -1084,14 +1093,7 @@ impl Vrnn {
         let ms = steps(&i.mask.unsqueeze(D::Minus1)?)?;
         let ls = lengths.map(steps).transpose()?;
         // The condition's rows, one per sequence.
-        let bias = match i.bias {
-            Some(b) => Some(Bias {
-                pre: b.pre.squeeze(1)?,
-                prior: b.prior.squeeze(1)?,
-                decoder: b.decoder.squeeze(1)?,
-            }),
-            None => None,
-        };
+        let bias = i.bias.map(Bias::per_sequence).transpose()?;
         let st = Steps::new(self, bias.as_ref())?;
         let (rho, rho_out) = (c.parts.latent_filter, c.parts.output_filter);
         let mut h = Tensor::zeros((x.dim(0)?, c.hidden), DType::F32, x.device())?;
