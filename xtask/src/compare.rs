@@ -2,7 +2,6 @@
 //! dataset, each run evaluated, and one results page (mean ± std over the
 //! seeds, the goals each model meets, training time, contact sheets).
 
-use crate::train;
 use anyhow::Result;
 use clap::Args;
 use motion_eval::compare::{compare, CompareOptions};
@@ -18,7 +17,7 @@ pub struct CompareArgs {
     #[arg(long, default_value = "runs/compare")]
     out: PathBuf,
     /// Models (default: every model).
-    #[arg(long = "model", value_parser = train::parse_model)]
+    #[arg(long = "model", value_parser = motion_vrnn::model::parse_name)]
     models: Vec<String>,
     /// Training seeds per model (0, 1, …).
     #[arg(long, default_value_t = 3)]

@@ -5,7 +5,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use motion_vrnn::bench;
 use motion_vrnn::classifier::{self, ClassifierTraining};
-use motion_vrnn::model::{Config, MODELS};
+use motion_vrnn::model::Config;
 use motion_vrnn::options::{ConditionOn, Overrides, Preset, SelectBy};
 use motion_vrnn::train::{layout, train, EpochMetrics, TrainProgress};
 use std::path::PathBuf;
@@ -19,7 +19,7 @@ pub struct TrainArgs {
     #[arg(long, default_value = "runs/vrnn")]
     pub out: PathBuf,
     /// The model (`paper`, `smooth`, `skeletal`, `feet`, `fed`, `motion`; see docs/training.md).
-    #[arg(long, default_value = motion_vrnn::model::DEFAULT_MODEL, value_parser = parse_model)]
+    #[arg(long, default_value = motion_vrnn::model::DEFAULT_MODEL, value_parser = motion_vrnn::model::parse_name)]
     pub model: String,
     /// Override the model's latent filter pole (0: off).
     #[arg(long)]
@@ -56,7 +56,7 @@ pub struct TrainArgs {
     pub latent: Option<usize>,
     /// Starting point for every option below (docs/training.md, "Presets").
     /// `minute`: `standard` with --feed-rounds 0 --rollouts-at-temperature
-    /// --condition category+pace --judge-stretches 14 --judge-every 10;
+    /// --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3;
     /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
     /// stopping 60; `quick`: 30 epochs; `paper`: the paper (batch 1,600).
     #[arg(long, default_value = "minute")]
@@ -77,6 +77,9 @@ pub struct TrainArgs {
     /// Seed of initialisation, shuffling and noise.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Initialisations tried for 20 epochs each, the best on validation kept (1: the seed's alone; `minute`: 3; docs/training.md).
+    #[arg(long)]
+    pub inits: Option<usize>,
     /// KL warm-up epochs (0: off).
     #[arg(long)]
     pub kl_warmup: Option<usize>,
@@ -156,17 +159,6 @@ impl Bar {
     }
 }
 
-/// A model name of [`MODELS`], or an error that lists them.
-pub fn parse_model(name: &str) -> std::result::Result<String, String> {
-    match Config::named(name) {
-        Some(_) => Ok(name.to_string()),
-        None => Err(format!(
-            "unknown model {name:?}; the models: {}",
-            MODELS.iter().map(|m| m.0).collect::<Vec<_>>().join(", ")
-        )),
-    }
-}
-
 impl TrainArgs {
     /// The options that replace the preset's values.
     fn overrides(&self) -> Overrides {
@@ -195,6 +187,7 @@ impl TrainArgs {
             rollouts_at_temperature: self.rollouts_at_temperature,
             float_limit: self.float_limit,
             contact_speed: self.contact_speed,
+            inits: self.inits,
         }
     }
 }

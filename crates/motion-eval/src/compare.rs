@@ -59,7 +59,7 @@ const CONDITIONED_WHAT: &str = "`motion` trained with `--preset standard` (condi
 pub const MINUTE: &str = "motion-minute";
 
 /// What [`MINUTE`] is, on the results page.
-const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--feed-rounds 0 --rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10`), asked as `motion-category` is and for its window's pace: **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\")";
+const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--feed-rounds 0 --rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3`), asked as `motion-category` is and for its window's pace: **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\")";
 
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
@@ -180,8 +180,8 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
 const MINUTE_ASKED: AskedModel = AskedModel {
     title: "the default model (`--preset minute`)",
     about: "`cargo xtask train`, the `minute` preset (the `standard` preset's condition with the pace as well, \
-            each motion asked for its context window's; feed rounds at the sampling temperature; the judge over \
-            the minute)",
+            each motion asked for its context window's; fed back to every depth at the sampling temperature; the \
+            judge over the minute; the best of 3 initialisations)",
 };
 
 /// The `motion` model's conditioned runs (with a classifier): directory,

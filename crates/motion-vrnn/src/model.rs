@@ -248,6 +248,17 @@ pub const MODELS: [(&str, &str); 6] = [
     ("motion", "smooth, skeletal, feet and fed together, fed back in two rounds, sampled at temperature 0.7"),
 ];
 
+/// A model name of [`MODELS`], or an error that lists them.
+pub fn parse_name(name: &str) -> std::result::Result<String, String> {
+    match MODELS.iter().any(|m| m.0 == name) {
+        true => Ok(name.to_string()),
+        false => Err(format!(
+            "unknown model {name:?}; the models: {}",
+            MODELS.map(|m| m.0).join(", ")
+        )),
+    }
+}
+
 /// The largest share of frames fed back in the models that do (`fed`,
 /// `motion`).
 pub const SELF_FEED: f64 = 0.5;

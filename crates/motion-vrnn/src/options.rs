@@ -17,7 +17,7 @@ pub enum Preset {
     /// motion ([`Preset::overrides`]): fed back to every depth in one pass,
     /// drawn at the sampling temperature, conditioned on the category and the pace, the judge over
     /// 14 stretches every 10 epochs (`docs/training.md`, "The judge and the
-    /// minute").
+    /// minute"), from the best of 3 initialisations after 20 epochs.
     Minute,
 }
 
@@ -42,6 +42,7 @@ impl Preset {
                 condition: Some(ConditionOn::CategoryPace),
                 judge_stretches: Some(14),
                 judge_every: Some(10),
+                inits: Some(3),
                 ..Overrides::default()
             },
             _ => Overrides::default(),
@@ -176,6 +177,10 @@ pub struct Overrides {
     /// Planted toes in the contact loss must also move slower than this
     /// (m/s; [`crate::model::Parts::contact_speed`]; 0: height alone).
     pub contact_speed: Option<f64>,
+    /// Initialisations tried, each for [`crate::train::INIT_EPOCHS`]
+    /// epochs, the best on validation kept ([`crate::train::Inits`]; 1: the
+    /// seed's alone).
+    pub inits: Option<usize>,
 }
 
 impl Overrides {
@@ -242,6 +247,12 @@ impl Overrides {
         if let Some(v) = self.judge_stretches {
             cfg.judge_stretches = (v > 1).then_some(v);
         }
+        if let Some(v) = self.inits {
+            cfg.inits = (v > 1).then_some(crate::train::Inits {
+                candidates: v,
+                epochs: crate::train::INIT_EPOCHS,
+            });
+        }
         match self.condition {
             Some(ConditionOn::None) => {
                 cfg.condition = None;
@@ -289,9 +300,11 @@ mod tests {
             judge_stretches: Some(1),
             seed: Some(3),
             latent: Some(16),
+            inits: Some(1),
             ..Default::default()
         }
         .apply(&mut cfg);
+        assert_eq!(cfg.inits, None);
         assert_eq!(cfg.model.latent, 16);
         assert_eq!(cfg.judge_stretches, None);
         assert_eq!(cfg.model.parts.kl_weight, None);
@@ -320,6 +333,17 @@ mod tests {
         }
         .apply(&mut paper);
         assert_eq!(paper.judge_stretches, Some(4));
+        Overrides {
+            inits: Some(3),
+            ..Default::default()
+        }
+        .apply(&mut paper);
+        let inits = crate::train::Inits {
+            candidates: 3,
+            epochs: crate::train::INIT_EPOCHS,
+        };
+        assert_eq!(paper.inits, Some(inits));
+        assert_eq!(inits.seed(5, 2), 5 + (2 << 32));
         assert_eq!("loss".parse::<SelectBy>(), Ok(SelectBy::Loss));
         assert!("best".parse::<SelectBy>().is_err());
         assert_eq!(
@@ -334,7 +358,8 @@ mod tests {
         let motion = || crate::model::Config::named("motion").unwrap_or_default();
         let minute = Preset::Minute.for_model(motion());
         // The same as `--feed-rounds 0 --rollouts-at-temperature --condition
-        // category+pace --judge-stretches 14 --judge-every 10` on `standard`.
+        // category+pace --judge-stretches 14 --judge-every 10 --inits 3` on
+        // `standard`.
         let mut flags = TrainConfig::standard();
         flags.model = motion();
         Overrides {
@@ -343,6 +368,7 @@ mod tests {
             condition: Some(ConditionOn::CategoryPace),
             judge_stretches: Some(14),
             judge_every: Some(10),
+            inits: Some(3),
             ..Default::default()
         }
         .apply(&mut flags);
@@ -361,7 +387,8 @@ mod tests {
         assert_eq!(held.model.parts.float_limit, Some(3.0));
         assert_eq!(held.model.name(), Some("motion"));
         assert!(held.extras().ends_with(
-            ", generated figures at most 3 units off the floor, judged over 14 stretches"
+            ", generated figures at most 3 units off the floor, judged over 14 stretches, \
+             from the best of 3 initialisations after 20 epochs"
         ));
         limit(0.0, &mut held);
         assert_eq!(held, minute);
@@ -413,11 +440,13 @@ mod tests {
         assert_eq!(
             minute.extras(),
             " conditioned on the category and its pace (--condition none: neither), \
-             fed back to every depth, fed back at the sampling temperature, judged over 14 stretches"
+             fed back to every depth, fed back at the sampling temperature, judged over 14 stretches, \
+             from the best of 3 initialisations after 20 epochs"
         );
         assert_eq!(
             none.extras(),
-            ", fed back to every depth, fed back at the sampling temperature, judged over 14 stretches"
+            ", fed back to every depth, fed back at the sampling temperature, judged over 14 stretches, \
+             from the best of 3 initialisations after 20 epochs"
         );
         assert_eq!(
             TrainConfig::standard().extras(),

@@ -55,6 +55,45 @@ pub struct TrainConfig {
     /// category`); None: an unconditioned model.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub condition: Option<Conditioning>,
+    /// Start from the best of several initialisations ([`Inits`]; None:
+    /// from the seed's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inits: Option<Inits>,
+}
+
+/// Epochs each initialisation is trained before they are compared
+/// (`--inits`): by epoch 20 the weak initialisations of the default have
+/// fallen behind for good (`docs/training.md`, "The best of several
+/// initialisations").
+pub const INIT_EPOCHS: usize = 20;
+
+/// Several initialisations, each trained for a few epochs (nothing
+/// written), the one with the lowest validation loss kept: the run then
+/// trains from it as if it were the seed's. Candidate `k` draws its weights
+/// from `seed + k·2³²` (candidate 0 is the seed's own); shuffles, noise
+/// and masks come from the seed for every candidate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Inits {
+    /// Initialisations tried.
+    pub candidates: usize,
+    /// Epochs each is trained before they are compared.
+    pub epochs: usize,
+}
+
+impl Inits {
+    /// The seed of candidate `k`'s weights.
+    pub fn seed(&self, seed: u64, k: usize) -> u64 {
+        seed.wrapping_add((k as u64) << 32)
+    }
+}
+
+/// The initialisation a run with [`TrainConfig::inits`] kept.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InitChoice {
+    /// The seed its weights were drawn from.
+    pub seed: u64,
+    /// Every candidate's validation loss after [`Inits::epochs`], in order.
+    pub val_losses: Vec<f64>,
 }
 
 /// Training conditioned on the category of each window's take.
@@ -111,6 +150,7 @@ impl TrainConfig {
             lr_final: None,
             judge_stretches: None,
             condition: None,
+            inits: None,
         }
     }
 
@@ -185,6 +225,12 @@ impl TrainConfig {
         }
         if let Some(n) = self.judge_stretches {
             s += &format!(", judged over {n} stretches");
+        }
+        if let Some(i) = self.inits {
+            s += &format!(
+                ", from the best of {} initialisations after {} epochs",
+                i.candidates, i.epochs
+            );
         }
         s
     }
@@ -308,6 +354,9 @@ pub struct CheckpointMeta {
     /// epoch (the `best` checkpoint).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_generated: Option<(f64, usize)>,
+    /// With [`TrainConfig::inits`]: the initialisation kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<InitChoice>,
     /// Metrics of the last epoch.
     pub metrics: Option<EpochMetrics>,
 }
@@ -710,12 +759,6 @@ pub fn train(
         None => Vec::new(),
     };
     let config = &config;
-    let t = init_model(&config.model, config.seed, device)?;
-    let mut adam = Adam::new(named_vars(&t.varmap), config.adam)?;
-    let mut history: Vec<EpochMetrics> = Vec::new();
-    let mut start_epoch = 0;
-    let mut best = (f64::INFINITY, 0usize);
-    let mut best_generated: Option<(f64, usize)> = None;
     let judge = match config.select {
         Select::Loss => None,
         Select::Generation { every: 0 } => {
@@ -730,6 +773,31 @@ pub fn train(
     };
     let last_dir = run.join(layout::LAST);
     let resume = resume && resumable(run, progress)?;
+    if !resume && last_dir.exists() {
+        return Err(TrainError::Invalid(format!(
+            "{} already holds a run: pass --resume to continue it, or choose another --out",
+            run.display()
+        )));
+    }
+    let epochs = Epochs {
+        data,
+        train,
+        val,
+        config,
+        run,
+        device,
+    };
+    let mut init = match config.inits {
+        Some(inits) if !resume && inits.candidates > 1 => Some(epochs.probe(inits, progress)?),
+        _ => None,
+    };
+    let init_seed = init.as_ref().map_or(config.seed, |i| i.seed);
+    let t = init_model(&config.model, init_seed, device)?;
+    let mut adam = Adam::new(named_vars(&t.varmap), config.adam)?;
+    let mut history: Vec<EpochMetrics> = Vec::new();
+    let mut start_epoch = 0;
+    let mut best = (f64::INFINITY, 0usize);
+    let mut best_generated: Option<(f64, usize)> = None;
     if resume {
         let meta = read_meta(&last_dir)?;
         // Only the number of epochs may change on resume.
@@ -760,6 +828,7 @@ pub fn train(
         start_epoch = meta.epoch;
         best = (meta.best_val_loss, meta.best_epoch);
         best_generated = meta.best_generated;
+        init = meta.init;
         // Keep the metrics of the epochs the checkpoint has seen.
         if let Ok(text) = std::fs::read_to_string(&metrics_path) {
             history = text
@@ -770,114 +839,16 @@ pub fn train(
         }
         rewrite_metrics(&metrics_path, &history)?;
     } else {
-        if last_dir.exists() {
-            return Err(TrainError::Invalid(format!(
-                "{} already holds a run: pass --resume to continue it, or choose another --out",
-                run.display()
-            )));
-        }
         rewrite_metrics(&metrics_path, &[])?;
     }
 
-    let vars = adam.vars().to_vec();
-    let var_list: Vec<Var> = vars.iter().map(|(_, v)| v.clone()).collect();
     let mut stale = history.len().saturating_sub(best.1);
     for epoch in start_epoch..config.epochs {
         if config.early_stopping.is_some_and(|p| stale >= p) {
             break;
         }
         let started = std::time::Instant::now();
-        let kl_w = config.kl_weight(epoch);
-        let lr = config.lr(epoch);
-        adam.set_lr(lr);
-        let perm = Rng::new(config.seed, 1000 + epoch as u64).permutation(train.n);
-        let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
-        for chunk in perm.chunks(config.batch) {
-            let step = adam.step + 1;
-            let x = train.batch(chunk, device)?;
-            let eps = noise(
-                config.seed,
-                step,
-                train.length,
-                chunk.len(),
-                config.model.latent,
-                device,
-            )?;
-            let feed = feed_mask(
-                config.seed,
-                step,
-                chunk.len(),
-                train.length,
-                config.feed_share(epoch),
-                device,
-            )?;
-            let cond = match config.condition {
-                Some(c) => {
-                    let mut rng = Rng::new(config.seed ^ 0xC0DE_0000_0000, step);
-                    let drop: Vec<bool> = chunk.iter().map(|_| rng.uniform() < c.dropout).collect();
-                    let model = &config.model;
-                    model.window_condition(train_categories, chunk, 1.0, |k| drop[k], device)?
-                }
-                None => None,
-            };
-            let ((r, k), grads) = sharded(
-                &t.model,
-                &x,
-                &eps,
-                feed.as_ref(),
-                cond.as_ref(),
-                Some((kl_w, &var_list)),
-            )?;
-            if !(r.is_finite() && k.is_finite()) {
-                return Err(TrainError::NonFinite {
-                    step,
-                    epoch: epoch + 1,
-                    recon: r,
-                    kl: k,
-                    dir: run.to_path_buf(),
-                });
-            }
-            let mut grads = grads.ok_or_else(|| TrainError::Invalid("no gradients".into()))?;
-            if let Some(max) = config.clip_grad_norm {
-                clip_grad_norm(&vars, &mut grads, max)?;
-            }
-            adam.step(&grads)?;
-            sum_r += r as f64 * chunk.len() as f64;
-            sum_k += k as f64 * chunk.len() as f64;
-            seen += chunk.len();
-            let wps = seen as f64 / started.elapsed().as_secs_f64().max(1e-9);
-            progress.step(epoch + 1, adam.step, r, k, wps);
-        }
-        let train_secs = started.elapsed().as_secs_f64();
-        let (val_recon, val_kl) = match val {
-            Some(v) => {
-                let cats = data.categories.get("val").unwrap_or(&no_categories);
-                evaluate(&t.model, v, cats, config.batch, config.seed, device)?
-            }
-            None => (sum_r / seen as f64, sum_k / seen as f64),
-        };
-        let m = EpochMetrics {
-            epoch: epoch + 1,
-            step: adam.step,
-            train_recon: sum_r / seen as f64,
-            train_kl: sum_k / seen as f64,
-            val_recon,
-            val_kl,
-            kl_weight: kl_w,
-            lr: Some(lr),
-            windows_per_s: seen as f64 / train_secs.max(1e-9),
-            seconds: 0.0,
-            generated: None,
-        };
-        if !m.val_loss().is_finite() {
-            return Err(TrainError::NonFinite {
-                step: adam.step,
-                epoch: epoch + 1,
-                recon: val_recon as f32,
-                kl: val_kl as f32,
-                dir: run.to_path_buf(),
-            });
-        }
+        let m = epochs.run(&t, &mut adam, epoch, progress)?;
         let improved = m.val_loss() < best.0;
         if improved {
             best = (m.val_loss(), m.epoch);
@@ -914,6 +885,7 @@ pub fn train(
             best_val_loss: best.0,
             best_epoch: best.1,
             best_generated,
+            init: init.clone(),
             metrics: Some(m.clone()),
         };
         // Metrics first, then the checkpoint: a resume trims metrics to the
@@ -927,6 +899,174 @@ pub fn train(
         history.push(m);
     }
     Ok(Outcome { model: t, history })
+}
+
+/// What every epoch of a run reads.
+struct Epochs<'a> {
+    data: &'a Dataset,
+    train: &'a Windows,
+    val: Option<&'a Windows>,
+    config: &'a TrainConfig,
+    run: &'a Path,
+    device: &'a Device,
+}
+
+impl Epochs<'_> {
+    /// Epoch `epoch` (0-based) of `t`: Adam steps over the shuffled training
+    /// windows, then the validation loss; the metrics, not yet judged.
+    fn run(
+        &self,
+        t: &Trained,
+        adam: &mut Adam,
+        epoch: usize,
+        progress: &dyn TrainProgress,
+    ) -> Result<EpochMetrics, TrainError> {
+        let (config, train, device) = (self.config, self.train, self.device);
+        let categories = |split: &str| self.data.categories.get(split).map_or(&[][..], |c| &c[..]);
+        let vars = adam.vars().to_vec();
+        let var_list: Vec<Var> = vars.iter().map(|(_, v)| v.clone()).collect();
+        let started = std::time::Instant::now();
+        let kl_w = config.kl_weight(epoch);
+        let lr = config.lr(epoch);
+        adam.set_lr(lr);
+        let perm = Rng::new(config.seed, 1000 + epoch as u64).permutation(train.n);
+        let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
+        for chunk in perm.chunks(config.batch) {
+            let step = adam.step + 1;
+            let x = train.batch(chunk, device)?;
+            let eps = noise(
+                config.seed,
+                step,
+                train.length,
+                chunk.len(),
+                config.model.latent,
+                device,
+            )?;
+            let feed = feed_mask(
+                config.seed,
+                step,
+                chunk.len(),
+                train.length,
+                config.feed_share(epoch),
+                device,
+            )?;
+            let cond = match config.condition {
+                Some(c) => {
+                    let mut rng = Rng::new(config.seed ^ 0xC0DE_0000_0000, step);
+                    let drop: Vec<bool> = chunk.iter().map(|_| rng.uniform() < c.dropout).collect();
+                    let model = &config.model;
+                    model.window_condition(categories("train"), chunk, 1.0, |k| drop[k], device)?
+                }
+                None => None,
+            };
+            let ((r, k), grads) = sharded(
+                &t.model,
+                &x,
+                &eps,
+                feed.as_ref(),
+                cond.as_ref(),
+                Some((kl_w, &var_list)),
+            )?;
+            if !(r.is_finite() && k.is_finite()) {
+                return Err(TrainError::NonFinite {
+                    step,
+                    epoch: epoch + 1,
+                    recon: r,
+                    kl: k,
+                    dir: self.run.to_path_buf(),
+                });
+            }
+            let mut grads = grads.ok_or_else(|| TrainError::Invalid("no gradients".into()))?;
+            if let Some(max) = config.clip_grad_norm {
+                clip_grad_norm(&vars, &mut grads, max)?;
+            }
+            adam.step(&grads)?;
+            sum_r += r as f64 * chunk.len() as f64;
+            sum_k += k as f64 * chunk.len() as f64;
+            seen += chunk.len();
+            let wps = seen as f64 / started.elapsed().as_secs_f64().max(1e-9);
+            progress.step(epoch + 1, adam.step, r, k, wps);
+        }
+        let train_secs = started.elapsed().as_secs_f64();
+        let (val_recon, val_kl) = match self.val {
+            Some(v) => evaluate(
+                &t.model,
+                v,
+                categories("val"),
+                config.batch,
+                config.seed,
+                device,
+            )?,
+            None => (sum_r / seen as f64, sum_k / seen as f64),
+        };
+        let m = EpochMetrics {
+            epoch: epoch + 1,
+            step: adam.step,
+            train_recon: sum_r / seen as f64,
+            train_kl: sum_k / seen as f64,
+            val_recon,
+            val_kl,
+            kl_weight: kl_w,
+            lr: Some(lr),
+            windows_per_s: seen as f64 / train_secs.max(1e-9),
+            seconds: 0.0,
+            generated: None,
+        };
+        if !m.val_loss().is_finite() {
+            return Err(TrainError::NonFinite {
+                step: adam.step,
+                epoch: epoch + 1,
+                recon: val_recon as f32,
+                kl: val_kl as f32,
+                dir: self.run.to_path_buf(),
+            });
+        }
+        Ok(m)
+    }
+
+    /// [`TrainConfig::inits`]: each candidate trained for `inits.epochs`
+    /// epochs, the one with the lowest validation loss kept (the first of
+    /// equals; a candidate whose loss leaves the finite numbers loses).
+    fn probe(&self, inits: Inits, progress: &dyn TrainProgress) -> Result<InitChoice, TrainError> {
+        let mut val_losses = Vec::with_capacity(inits.candidates);
+        for k in 0..inits.candidates {
+            let seed = inits.seed(self.config.seed, k);
+            progress.note(&format!(
+                "initialisation {} of {} (weights from seed {seed}): {} epochs",
+                k + 1,
+                inits.candidates,
+                inits.epochs
+            ));
+            let t = init_model(&self.config.model, seed, self.device)?;
+            let mut adam = Adam::new(named_vars(&t.varmap), self.config.adam)?;
+            let mut loss = f64::INFINITY;
+            for epoch in 0..inits.epochs.min(self.config.epochs) {
+                match self.run(&t, &mut adam, epoch, progress) {
+                    Ok(m) => loss = m.val_loss(),
+                    Err(TrainError::NonFinite { .. }) => {
+                        loss = f64::INFINITY;
+                        break;
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+            val_losses.push(loss);
+        }
+        let kept =
+            (0..val_losses.len()).fold(0, |b, k| if val_losses[k] < val_losses[b] { k } else { b });
+        let shown: Vec<String> = val_losses.iter().map(|l| format!("{l:.1}")).collect();
+        progress.note(&format!(
+            "kept initialisation {} of {} (validation loss after {} epochs: {})",
+            kept + 1,
+            inits.candidates,
+            inits.epochs,
+            shown.join(", ")
+        ));
+        Ok(InitChoice {
+            seed: inits.seed(self.config.seed, kept),
+            val_losses,
+        })
+    }
 }
 
 /// The options (JSON paths, `model.parts.self_feed`) whose values differ
