@@ -440,12 +440,12 @@ mod tests {
         assert_eq!(
             minute.extras(),
             " conditioned on the category and its pace (--condition none: neither), \
-             fed back to every depth, fed back at the sampling temperature, judged over 14 stretches, \
+             fed back to every depth at the sampling temperature, judged over 14 stretches, \
              from the best of 3 initialisations after 20 epochs"
         );
         assert_eq!(
             none.extras(),
-            ", fed back to every depth, fed back at the sampling temperature, judged over 14 stretches, \
+            ", fed back to every depth at the sampling temperature, judged over 14 stretches, \
              from the best of 3 initialisations after 20 epochs"
         );
         assert_eq!(

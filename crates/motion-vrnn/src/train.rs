@@ -211,12 +211,13 @@ impl TrainConfig {
                 false => " conditioned on the category (--condition none: without)",
             };
         }
-        if self.model.parts.self_feed > 0.0 && self.model.parts.rounds() == 0 {
-            s += ", fed back to every depth";
-        }
-        if self.model.parts.rollouts_at_temperature {
-            s += ", fed back at the sampling temperature";
-        }
+        let every_depth = self.model.parts.self_feed > 0.0 && self.model.parts.rounds() == 0;
+        s += match (every_depth, self.model.parts.rollouts_at_temperature) {
+            (true, true) => ", fed back to every depth at the sampling temperature",
+            (true, false) => ", fed back to every depth",
+            (false, true) => ", fed back at the sampling temperature",
+            (false, false) => "",
+        };
         if let Some(l) = self.model.parts.float_limit {
             s += &format!(", generated figures at most {l} units off the floor");
         }
