@@ -543,8 +543,9 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
         }
         s += "\n";
     }
-    s += "\nTraining time is the wall-clock time of a run's epochs as it was trained (`metrics.jsonl`), \
-          so it depends on what else the machine was doing then; `cargo xtask bench-train` compares speeds.\n";
+    s += "\nTraining time is the wall-clock time of a run's epochs as it was trained (`metrics.jsonl`; a probe of \
+          several initialisations before them, `--inits`, is not counted), so it depends on what else the machine \
+          was doing then; `cargo xtask bench-train` compares speeds.\n";
     s += "\n## Goals met (issue 11): on the mean over the seeds, and seed by seed\n\n";
     s += &header("goal", table);
     let means = table
