@@ -41,10 +41,15 @@ fn train_for(epochs: &str, ds: &Path, out: &Path) -> Command {
     c
 }
 
-fn epoch_of(run: &Path) -> usize {
+/// `last/checkpoint.json` of `run` (None before its first checkpoint).
+fn last_meta(run: &Path) -> Option<serde_json::Value> {
     std::fs::read_to_string(run.join("last/checkpoint.json"))
         .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|t| serde_json::from_str(&t).ok())
+}
+
+fn epoch_of(run: &Path) -> usize {
+    last_meta(run)
         .and_then(|v| v["epoch"].as_u64())
         .unwrap_or(0) as usize
 }
@@ -143,9 +148,7 @@ fn the_best_of_several_initialisations_is_kept_and_trained_on_as_probed() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(stderr.contains("kept initialisation"), "{stderr}");
-    let meta: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("last/checkpoint.json")).unwrap())
-            .unwrap();
+    let meta = last_meta(&run).expect("a checkpoint");
     let losses: Vec<f64> = meta["init"]["val_losses"]
         .as_array()
         .unwrap()

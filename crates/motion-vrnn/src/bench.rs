@@ -37,14 +37,7 @@ pub fn bench_models() -> Vec<String> {
 /// `name` if it is one of [`bench_models`], or an error listing them (a
 /// command-line parser).
 pub fn parse_model(name: &str) -> Result<String, String> {
-    let known = bench_models();
-    match known.iter().any(|m| m == name) {
-        true => Ok(name.to_string()),
-        false => Err(format!(
-            "unknown model {name:?}; the models: {}",
-            known.join(", ")
-        )),
-    }
+    crate::model::one_of(name, &bench_models())
 }
 
 /// The configuration `name` ([`bench_models`]) stands for.

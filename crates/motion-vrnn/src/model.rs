@@ -250,11 +250,21 @@ pub const MODELS: [(&str, &str); 6] = [
 
 /// A model name of [`MODELS`], or an error that lists them.
 pub fn parse_name(name: &str) -> std::result::Result<String, String> {
-    match MODELS.iter().any(|m| m.0 == name) {
+    one_of(name, &MODELS.map(|m| m.0))
+}
+
+/// `name` if it is one of `known`, or an error that lists them (the
+/// command-line parsers of model names).
+pub fn one_of<S: AsRef<str>>(name: &str, known: &[S]) -> std::result::Result<String, String> {
+    match known.iter().any(|m| m.as_ref() == name) {
         true => Ok(name.to_string()),
         false => Err(format!(
             "unknown model {name:?}; the models: {}",
-            MODELS.map(|m| m.0).join(", ")
+            known
+                .iter()
+                .map(|m| m.as_ref())
+                .collect::<Vec<_>>()
+                .join(", ")
         )),
     }
 }

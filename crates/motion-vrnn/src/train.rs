@@ -849,7 +849,7 @@ pub fn train(
             break;
         }
         let started = std::time::Instant::now();
-        let m = epochs.run(&t, &mut adam, epoch, progress)?;
+        let mut m = epochs.run(&t, &mut adam, epoch, progress)?;
         let improved = m.val_loss() < best.0;
         if improved {
             best = (m.val_loss(), m.epoch);
@@ -859,7 +859,6 @@ pub fn train(
         }
         // Judge every `every` epochs, at the last epoch, and before early
         // stopping ends the run.
-        let mut m = m;
         let last = m.epoch == config.epochs || config.early_stopping.is_some_and(|p| stale >= p);
         let chosen = match &judge {
             None => improved,
@@ -1029,19 +1028,20 @@ impl Epochs<'_> {
     /// epochs, the one with the lowest validation loss kept (the first of
     /// equals; a candidate whose loss leaves the finite numbers loses).
     fn probe(&self, inits: Inits, progress: &dyn TrainProgress) -> Result<InitChoice, TrainError> {
+        // A run shorter than the probe is probed over its whole length.
+        let epochs = inits.epochs.min(self.config.epochs);
         let mut val_losses = Vec::with_capacity(inits.candidates);
         for k in 0..inits.candidates {
             let seed = inits.seed(self.config.seed, k);
             progress.note(&format!(
-                "initialisation {} of {} (weights from seed {seed}): {} epochs",
+                "initialisation {} of {} (weights from seed {seed}): {epochs} epochs",
                 k + 1,
                 inits.candidates,
-                inits.epochs
             ));
             let t = init_model(&self.config.model, seed, self.device)?;
             let mut adam = Adam::new(named_vars(&t.varmap), self.config.adam)?;
             let mut loss = f64::INFINITY;
-            for epoch in 0..inits.epochs.min(self.config.epochs) {
+            for epoch in 0..epochs {
                 match self.run(&t, &mut adam, epoch, progress) {
                     Ok(m) => loss = m.val_loss(),
                     Err(TrainError::NonFinite { .. }) => {
@@ -1057,10 +1057,9 @@ impl Epochs<'_> {
             (0..val_losses.len()).fold(0, |b, k| if val_losses[k] < val_losses[b] { k } else { b });
         let shown: Vec<String> = val_losses.iter().map(|l| format!("{l:.1}")).collect();
         progress.note(&format!(
-            "kept initialisation {} of {} (validation loss after {} epochs: {})",
+            "kept initialisation {} of {} (validation loss after {epochs} epochs: {})",
             kept + 1,
             inits.candidates,
-            inits.epochs,
             shown.join(", ")
         ));
         Ok(InitChoice {
