@@ -80,6 +80,9 @@ pub struct TrainArgs {
     /// Initialisations tried for 20 epochs each, the best on validation kept (1: the seed's alone; `minute`: 3; docs/training.md).
     #[arg(long)]
     pub inits: Option<usize>,
+    /// Fed-back frames in runs of this many consecutive frames (1: each on its own).
+    #[arg(long)]
+    pub feed_run: Option<usize>,
     /// KL warm-up epochs (0: off).
     #[arg(long)]
     pub kl_warmup: Option<usize>,
@@ -188,6 +191,7 @@ impl TrainArgs {
             float_limit: self.float_limit,
             contact_speed: self.contact_speed,
             inits: self.inits,
+            feed_run: self.feed_run,
         }
     }
 }

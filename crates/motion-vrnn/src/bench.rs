@@ -127,7 +127,7 @@ pub fn time_steps(
             let mut times = Vec::new();
             for step in 0..steps.max(1) + 2 {
                 let eps = noise(0, step as u64, t, b, model.latent, device)?;
-                let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, device)?;
+                let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, 1, device)?;
                 let start = std::time::Instant::now();
                 let grads = if path == "fused" {
                     let c = cond.as_ref();

@@ -181,6 +181,8 @@ pub struct Overrides {
     /// epochs, the best on validation kept ([`crate::train::Inits`]; 1: the
     /// seed's alone).
     pub inits: Option<usize>,
+    /// Fed-back frames in runs of this many (1: each on its own).
+    pub feed_run: Option<usize>,
 }
 
 impl Overrides {
@@ -253,6 +255,9 @@ impl Overrides {
                 epochs: crate::train::INIT_EPOCHS,
             });
         }
+        if let Some(v) = self.feed_run {
+            cfg.feed_run = (v > 1).then_some(v);
+        }
         match self.condition {
             Some(ConditionOn::None) => {
                 cfg.condition = None;
@@ -301,10 +306,12 @@ mod tests {
             seed: Some(3),
             latent: Some(16),
             inits: Some(1),
+            feed_run: Some(1),
             ..Default::default()
         }
         .apply(&mut cfg);
         assert_eq!(cfg.inits, None);
+        assert_eq!(cfg.feed_run, None);
         assert_eq!(cfg.model.latent, 16);
         assert_eq!(cfg.judge_stretches, None);
         assert_eq!(cfg.model.parts.kl_weight, None);
@@ -344,6 +351,12 @@ mod tests {
         };
         assert_eq!(paper.inits, Some(inits));
         assert_eq!(inits.seed(5, 2), 5 + (2 << 32));
+        Overrides {
+            feed_run: Some(8),
+            ..Default::default()
+        }
+        .apply(&mut paper);
+        assert_eq!(paper.feed_run, Some(8));
         assert_eq!("loss".parse::<SelectBy>(), Ok(SelectBy::Loss));
         assert!("best".parse::<SelectBy>().is_err());
         assert_eq!(

@@ -59,6 +59,10 @@ pub struct TrainConfig {
     /// from the seed's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inits: Option<Inits>,
+    /// Fed-back frames come in runs of this many consecutive frames
+    /// (`--feed-run`; [`feed_mask`]); `None`: each frame on its own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub feed_run: Option<usize>,
 }
 
 /// Epochs each initialisation is trained before they are compared
@@ -151,6 +155,7 @@ impl TrainConfig {
             judge_stretches: None,
             condition: None,
             inits: None,
+            feed_run: None,
         }
     }
 
@@ -218,6 +223,9 @@ impl TrainConfig {
             (false, true) => ", fed back at the sampling temperature",
             (false, false) => "",
         };
+        if let Some(n) = self.feed_run {
+            s += &format!(", fed back in runs of {n} frames");
+        }
         if let Some(l) = self.model.parts.float_limit {
             s += &format!(", generated figures at most {l} units off the floor");
         }
@@ -274,24 +282,33 @@ impl TrainConfig {
     }
 }
 
-/// The scheduled-sampling mask of a step: `[B, T]`, each frame 1 with
-/// probability `share` (None when `share` is 0), from the run's seed and
-/// the step, so it is the same for any thread count and after a resume.
+/// The scheduled-sampling mask of a step: `[B, T]`, from the run's seed and
+/// the step, so it is the same for any thread count and after a resume
+/// (None when `share` is 0). Each window's frames go in blocks of `run`
+/// consecutive frames (the last block may be shorter), each block fed with
+/// probability `share`: a fed run is at least `run` steps of the model's own
+/// motion deep. `run` 1 draws each frame on its own.
 pub fn feed_mask(
     seed: u64,
     step: u64,
     b: usize,
     t: usize,
     share: f64,
+    run: usize,
     device: &Device,
 ) -> candle_core::Result<Option<Tensor>> {
     if share <= 0.0 {
         return Ok(None);
     }
+    let run = run.max(1);
     let mut rng = Rng::new(seed ^ 0xFEED_0000_0000, step);
-    let v: Vec<f32> = (0..b * t)
-        .map(|_| if rng.uniform() < share { 1.0 } else { 0.0 })
-        .collect();
+    let mut v = Vec::with_capacity(b * t);
+    for _ in 0..b {
+        for start in (0..t).step_by(run) {
+            let fed = if rng.uniform() < share { 1.0f32 } else { 0.0 };
+            v.extend(std::iter::repeat_n(fed, run.min(t - start)));
+        }
+    }
     Tensor::from_vec(v, (b, t), device).map(Some)
 }
 
@@ -948,6 +965,7 @@ impl Epochs<'_> {
                 chunk.len(),
                 train.length,
                 config.feed_share(epoch),
+                config.feed_run.unwrap_or(1),
                 device,
             )?;
             let cond = match config.condition {

@@ -49,7 +49,7 @@ fn sorted_vars(t: &Trained) -> Vec<(String, Var)> {
 fn feed(m: &Trained, x: &Tensor) -> Option<Tensor> {
     let (b, t, _) = x.dims3().unwrap();
     let share = m.model.config().parts.self_feed;
-    feed_mask(9, 1, b, t, share, &Device::Cpu).unwrap()
+    feed_mask(9, 1, b, t, share, 1, &Device::Cpu).unwrap()
 }
 
 fn grads(t: &Trained, x: &Tensor, eps: &Tensor, w: f64) -> ((f32, f32), Vec<Vec<f32>>) {
@@ -531,18 +531,41 @@ fn still_toes_change_the_foot_terms_only() {
 /// The mask has the share asked for, and is a pure function of seed and step.
 #[test]
 fn feed_masks_have_their_share() {
-    let m = feed_mask(1, 2, 40, 128, 0.3, &Device::Cpu)
+    let m = feed_mask(1, 2, 40, 128, 0.3, 1, &Device::Cpu)
         .unwrap()
         .unwrap();
     let v = m.flatten_all().unwrap().to_vec1::<f32>().unwrap();
     let share = v.iter().sum::<f32>() / v.len() as f32;
     assert!((share - 0.3).abs() < 0.02, "{share}");
     assert!(v.iter().all(|&x| x == 0.0 || x == 1.0));
-    let again = feed_mask(1, 2, 40, 128, 0.3, &Device::Cpu)
+    let again = feed_mask(1, 2, 40, 128, 0.3, 1, &Device::Cpu)
         .unwrap()
         .unwrap();
     assert_eq!(v, again.flatten_all().unwrap().to_vec1::<f32>().unwrap());
-    assert!(feed_mask(1, 2, 4, 4, 0.0, &Device::Cpu).unwrap().is_none());
+    assert!(feed_mask(1, 2, 4, 4, 0.0, 1, &Device::Cpu)
+        .unwrap()
+        .is_none());
+}
+
+/// `--feed-run 8`: each window's mask is constant over blocks of 8 frames
+/// (the last, of 4 here, too), blocks differ, and the share holds.
+#[test]
+fn fed_runs_come_in_blocks() {
+    let (b, t) = (200, 132);
+    let m = feed_mask(1, 2, b, t, 0.3, 8, &Device::Cpu)
+        .unwrap()
+        .unwrap();
+    let v = m.to_vec2::<f32>().unwrap();
+    let mut blocks = 0.0;
+    for w in &v {
+        for block in w.chunks(8) {
+            assert!(block.iter().all(|&x| x == block[0]), "{block:?}");
+            blocks += block[0];
+        }
+    }
+    let share = blocks / (b * t.div_ceil(8)) as f32;
+    assert!((share - 0.3).abs() < 0.03, "{share}");
+    assert!(v.iter().any(|w| w.contains(&1.0) && w.contains(&0.0)));
 }
 
 /// The losses and gradients of a batch are bit for bit the same with 1 and
