@@ -94,7 +94,13 @@ impl Dataset {
     /// was not loaded or has no windows).
     pub fn split(&self, split: &str) -> Option<(&Windows, &[Category])> {
         let w = self.splits.get(split).filter(|w| w.n > 0)?;
-        Some((w, self.categories.get(split).map_or(&[], Vec::as_slice)))
+        Some((w, self.categories_of(split)))
+    }
+
+    /// The category of each window of `split` (empty when the split was
+    /// not loaded).
+    pub fn categories_of(&self, split: &str) -> &[Category] {
+        self.categories.get(split).map_or(&[], Vec::as_slice)
     }
 }
 

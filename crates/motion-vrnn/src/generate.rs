@@ -279,7 +279,7 @@ impl<'a> Judge<'a> {
         });
         Ok(Judge {
             starts: train,
-            categories: data.categories.get("train").map_or(&[], Vec::as_slice),
+            categories: data.categories_of("train"),
             stats: &data.stats,
             real: motion_stats(&poses, &options),
             real_summaries,

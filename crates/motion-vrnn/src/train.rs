@@ -760,8 +760,7 @@ pub fn train(
     let mut config = config.clone();
     let stats = &data.stats;
     config.model.fit_to(&stats.mean, &stats.std, &train.data);
-    let no_categories = Vec::new();
-    let train_categories = data.categories.get("train").unwrap_or(&no_categories);
+    let train_categories = data.categories_of("train");
     config.model.categories = match config.condition {
         Some(c) if !(0.0..1.0).contains(&c.dropout) => {
             return Err(TrainError::Invalid(format!(
@@ -939,7 +938,6 @@ impl Epochs<'_> {
         progress: &dyn TrainProgress,
     ) -> Result<EpochMetrics, TrainError> {
         let (config, train, device) = (self.config, self.train, self.device);
-        let categories = |split: &str| self.data.categories.get(split).map_or(&[][..], |c| &c[..]);
         let vars = adam.vars().to_vec();
         let var_list: Vec<Var> = vars.iter().map(|(_, v)| v.clone()).collect();
         let started = std::time::Instant::now();
@@ -973,7 +971,13 @@ impl Epochs<'_> {
                     let mut rng = Rng::new(config.seed ^ 0xC0DE_0000_0000, step);
                     let drop: Vec<bool> = chunk.iter().map(|_| rng.uniform() < c.dropout).collect();
                     let model = &config.model;
-                    model.window_condition(categories("train"), chunk, 1.0, |k| drop[k], device)?
+                    model.window_condition(
+                        self.data.categories_of("train"),
+                        chunk,
+                        1.0,
+                        |k| drop[k],
+                        device,
+                    )?
                 }
                 None => None,
             };
@@ -1010,7 +1014,7 @@ impl Epochs<'_> {
             Some(v) => evaluate(
                 &t.model,
                 v,
-                categories("val"),
+                self.data.categories_of("val"),
                 config.batch,
                 config.seed,
                 device,
