@@ -41,6 +41,9 @@ pub struct Plain {
     pub jerk_m_s3: f64,
     /// APD, m (None below two windows).
     pub apd_m: Option<f64>,
+    /// Stride, m (`motion_metrics::stride`; 0 in reports written before it).
+    #[serde(default)]
+    pub stride_m: f64,
 }
 
 /// The model a results-page section is about: its heading and what it is.
@@ -72,6 +75,7 @@ pub fn plain(poses: &[Vec<Pose>]) -> Option<Plain> {
         contact: m.contact_share,
         jerk_m_s3: m.jerk_m_s3,
         apd_m: (poses.len() > 1).then_some(m.apd_m),
+        stride_m: m.stride_m,
     })
 }
 
@@ -377,8 +381,8 @@ pub fn markdown(a: &AskedSet) -> String {
          windows of the category (all splits) → asked → unasked, with the ratio of draws of half the real \
          windows to all of them in brackets. Goals (categories with at least {} training windows): \
          recognised ≥ 0.9 × real, speed and contact 0.75–1.25 × real.\n\n\
-         | category | train / {split} windows | recognised: real {split} → asked (unasked) | hips speed m/s | contact | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
-         |---|---|---|---|---|---|---|---|---|\n",
+         | category | train / {split} windows | recognised: real {split} → asked (unasked) | hips speed m/s | contact | stride m | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
         a.guidance,
         a.per_category,
         MIN_TRAIN_WINDOWS,
@@ -392,7 +396,7 @@ pub fn markdown(a: &AskedSet) -> String {
             (true, m) => m.join(", "),
         };
         s += &format!(
-            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
+            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
             c.category,
             c.train_windows,
             c.split_windows,
@@ -409,6 +413,9 @@ pub fn markdown(a: &AskedSet) -> String {
             c.unasked.contact,
             c.real_spread[1].0,
             c.real_spread[1].1,
+            c.real.stride_m,
+            c.generated.stride_m,
+            c.unasked.stride_m,
             c.real.jerk_m_s3,
             c.generated.jerk_m_s3,
             c.real.apd_m.map_or("–".into(), |v| format!("{v:.2}")),
@@ -422,7 +429,7 @@ pub fn markdown(a: &AskedSet) -> String {
     s += &format!(
         "\nEvery motion asked for, against every real window: jerk {:.2}×, bone cv {:.2} %, skating in contact {:.2}×, \
          hips height {:.2}×, hips speed {:.2}×; Fréchet (window summaries) {:.1} (train windows {:.1}); \
-         feature Fréchet {:.1}; diversity {}; multimodality {}.\n",
+         feature Fréchet {}; diversity {}; multimodality {}.\n",
         g.jerk_m_s3 / r.jerk_m_s3,
         100.0 * g.bone_cv,
         g.skate_in_contact / r.skate_in_contact,
@@ -470,11 +477,12 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
          classifier (`train-classifier`, seed 0) says what it got; \"unasked\" continues the same contexts with \
          the same noise and no category (what the contexts alone give). Speed and contact are generated ÷ the \
          real windows of the category (all splits), with the range of draws of half those real windows in \
-         brackets. Goals for categories with at least {} training windows: recognised ≥ 0.9 × the real {split} \
+         brackets; stride (how far the toes swing past each other, [metrics.md](metrics.md)) is a diagnostic \
+         beside them. Goals for categories with at least {} training windows: recognised ≥ 0.9 × the real {split} \
          windows of the category, speed and contact 0.75–1.25×.\n\n\
          | category | train / {split} windows | recognised, real {split} | recognised, asked | recognised, unasked | \
-         hips speed ÷ real | contact ÷ real | goals missed (mean) | seeds that miss |\n\
-         |---|---|---|---|---|---|---|---|---|\n",
+         hips speed ÷ real | contact ÷ real | stride ÷ real | goals missed (mean) | seeds that miss |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
         model.title,
         model.about,
         runs.len(),
@@ -490,6 +498,12 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
                 each.iter().map(|a| f(&a.generated) / f(&a.real)).collect(),
                 2,
             )
+        };
+        // Reports written before the stride have none: n/a, not NaN.
+        let stride = if each.iter().any(|a| a.real.stride_m <= 0.0) {
+            "n/a".to_string()
+        } else {
+            ratio(|p| p.stride_m)
         };
         // The goals on the mean over the seeds.
         let mean =
@@ -512,7 +526,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
             .collect();
         let spread = |i: usize| format!("[{:.2}–{:.2}]", c.real_spread[i].0, c.real_spread[i].1);
         s += &format!(
-            "| {} | {} / {} | {} | {} | {} | {} {} | {} {} | {} | {} |\n",
+            "| {} | {} / {} | {} | {} | {} | {} {} | {} {} | {} | {} | {} |\n",
             c.category,
             c.train_windows,
             c.split_windows,
@@ -524,6 +538,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
             spread(0),
             ratio(|p| p.contact),
             spread(1),
+            stride,
             missed,
             if seeds.is_empty() {
                 "–".into()
@@ -565,6 +580,7 @@ mod tests {
             contact,
             jerk_m_s3: 100.0,
             apd_m: Some(1.0),
+            stride_m: 0.3,
         }
     }
 
@@ -602,6 +618,34 @@ mod tests {
     }
 
     #[test]
+    fn eval_md_prints_each_category_and_the_whole_set() {
+        let mut walk = asked(0.9, 0.35, 0.6);
+        walk.generated.stride_m = 0.18;
+        let set = AskedSet {
+            split: "test".into(),
+            guidance: 1.25,
+            per_category: 64,
+            categories: vec![walk],
+            frechet: Some(4121.31),
+            diversity: Some(74.1),
+            multimodality: None,
+            generated: MotionStats::default(),
+            real: MotionStats::default(),
+            frechet_summaries: (65.8, 70.6),
+        };
+        let s = markdown(&set);
+        let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
+        // Stride: real → asked (unasked).
+        assert!(row.contains("| 0.30 → **0.18** (0.30) |"), "{row}");
+        assert!(row.ends_with("| speed |"), "{row}");
+        // Numbers printed whole (a precision on a string would cut it to "4").
+        assert!(
+            s.contains("feature Fréchet 4121.3; diversity 74.1; multimodality n/a."),
+            "{s}"
+        );
+    }
+
+    #[test]
     fn the_page_averages_seeds_and_names_those_that_miss() {
         let set = |a: Asked| AskedSet {
             split: "test".into(),
@@ -627,7 +671,7 @@ mod tests {
         let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
         assert!(row.contains("90 ± 0"), "{row}");
         assert!(row.contains("0.80 ± 0.28"), "{row}");
-        assert!(row.contains("| none | 0 (speed) |"), "{row}");
+        assert!(row.contains("| 1.00 ± 0.00 | none | 0 (speed) |"), "{row}");
         assert!(s.contains("![one row per category](sheet.png)"));
     }
 }

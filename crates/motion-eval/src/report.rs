@@ -227,7 +227,7 @@ pub fn markdown(r: &EvalReport) -> String {
     );
     s += "| measure | real | reconstructed | generated | reconstructed / real | generated / real |\n|---|---|---|---|---|---|\n";
     type Row = (&'static str, fn(&MotionStats) -> f64, usize);
-    let rows: [Row; 13] = [
+    let rows: [Row; 14] = [
         ("APD, m", |m| m.apd_m, 3),
         ("mean jerk, m/s³", |m| m.jerk_m_s3, 1),
         ("power above 5 Hz", |m| m.high_freq_share, 4),
@@ -244,6 +244,11 @@ pub fn markdown(r: &EvalReport) -> String {
             4,
         ),
         ("turning rate, °/s", |m| m.turning_deg_s, 1),
+        (
+            "stride (toes' swing along the facing), m",
+            |m| m.stride_m,
+            3,
+        ),
         (
             "frames in the air (no joint within 5 cm of the floor)",
             |m| m.airborne_share,
@@ -276,7 +281,7 @@ pub fn markdown(r: &EvalReport) -> String {
     if let Some(t) = &r.from_training {
         let g = &t.generated;
         s += &format!(
-            "\nGenerated from random training contexts instead (as `sample`; {} motions), ÷ real: APD {}, jerk {}, contact {}, skating in contact {}, hips height {}, hips speed {} (last 32 frames {}), turning {}; Fréchet {:.2}.\n",
+            "\nGenerated from random training contexts instead (as `sample`; {} motions), ÷ real: APD {}, jerk {}, contact {}, skating in contact {}, hips height {}, hips speed {} (last 32 frames {}), turning {}, stride {}; Fréchet {:.2}.\n",
             g.motions,
             ratio(g.apd_m, r.real.apd_m),
             ratio(g.jerk_m_s3, r.real.jerk_m_s3),
@@ -286,6 +291,7 @@ pub fn markdown(r: &EvalReport) -> String {
             ratio(g.root_speed_m_s, r.real.root_speed_m_s),
             ratio(g.root_speed_end_m_s, r.real.root_speed_end_m_s),
             ratio(g.turning_deg_s, r.real.turning_deg_s),
+            ratio(g.stride_m, r.real.stride_m),
             t.frechet
         );
     }

@@ -81,6 +81,10 @@ pub struct MotionStats {
     /// ([`airborne_share`]; 0 in reports written before it).
     #[serde(default)]
     pub airborne_share: f64,
+    /// Stride: how far the toes swing past each other along the facing
+    /// direction, m ([`stride`]; 0 in reports written before it).
+    #[serde(default)]
+    pub stride_m: f64,
 }
 
 /// Height of a frame's lowest joint above which the figure is in the air
@@ -330,7 +334,30 @@ pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
         root_speed_end_m_s: mean(&|m| root_speed(m, m.len().saturating_sub(TAIL), o.fps)),
         turning_deg_s: mean(&|m| turning_rate(m, o.fps)),
         airborne_share: mean(&airborne_share),
+        stride_m: mean(&stride),
     }
+}
+
+/// Stride of a motion (m): the standard deviation over its frames of how
+/// far the left toe is ahead of the right along the facing direction (the
+/// local frame's +z of `docs/features.md`, as [`turning_rate`] reads it).
+/// Walking swings it from one foot ahead to the other; a figure that
+/// shuffles or stands keeps it nearly constant. Frames whose facing is
+/// undefined are left out; 0 below two frames.
+pub fn stride(m: &[Pose]) -> f64 {
+    let ahead: Vec<f64> = m
+        .iter()
+        .filter_map(|p| {
+            let f = mocap_ingest::features::LocalFrame::of(p, 0.0)?;
+            Some((f.to_local(p[FEET[0]])[2] - f.to_local(p[FEET[1]])[2]) * METRES_PER_UNIT)
+        })
+        .collect();
+    if ahead.len() < 2 {
+        return 0.0;
+    }
+    let n = ahead.len() as f64;
+    let mean = ahead.iter().sum::<f64>() / n;
+    (ahead.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / n).sqrt()
 }
 
 /// Turning rate of a motion: the mean absolute change, from frame to frame,
@@ -685,6 +712,37 @@ mod tests {
         p[LEFT_ARM] = [3.0 * c, 14.0, -3.0 * s];
         p[RIGHT_ARM] = [-3.0 * c, 14.0, 3.0 * s];
         p
+    }
+
+    /// Toes `u` units either side of the hips along the facing direction,
+    /// the left one ahead, in a figure turned by `yaw`.
+    fn stepping(yaw: f64, u: f64) -> Pose {
+        let mut p = facing(yaw);
+        let (c, s) = (yaw.cos(), yaw.sin());
+        // Local +z is (sin yaw, cos yaw) in the floor plane; the toes also
+        // stand apart sideways, which the stride does not read.
+        p[FEET[0]] = [u * s + 1.0 * c, 0.5, u * c - 1.0 * s];
+        p[FEET[1]] = [-u * s - 1.0 * c, 0.5, -u * c + 1.0 * s];
+        p
+    }
+
+    #[test]
+    fn stride_of_steps_at_any_facing_and_of_a_still_stance() {
+        // Left toe 2 units ahead, then 2 behind: "ahead" is ±4 units, whose
+        // standard deviation is 4 units = 0.2256 m, however the figure faces.
+        for yaw in [0.0, 0.7, -2.0] {
+            let walk: Vec<Pose> = (0..10)
+                .map(|t| stepping(yaw, if t % 2 == 0 { 2.0 } else { -2.0 }))
+                .collect();
+            assert!((stride(&walk) - 4.0 * METRES_PER_UNIT).abs() < 1e-12);
+        }
+        // A figure turning on the spot with one foot always 2 units ahead.
+        let stance: Vec<Pose> = (0..10).map(|t| stepping(0.3 * t as f64, 2.0)).collect();
+        assert!(stride(&stance).abs() < 1e-12);
+        assert_eq!(stride(&stance[..1]), 0.0);
+        // Three frames ahead by 0, 1 and 2 units (left toe at u/2): std √(2/3).
+        let three: Vec<Pose> = (0..3).map(|t| stepping(0.0, t as f64 / 2.0)).collect();
+        assert!((stride(&three) - (2.0f64 / 3.0).sqrt() * METRES_PER_UNIT).abs() < 1e-12);
     }
 
     #[test]
