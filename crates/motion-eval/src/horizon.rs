@@ -282,7 +282,7 @@ pub fn markdown(h: &Horizon) -> String {
          {REAL_DRAWS} draws of {} real windows. Fréchet: against the evaluated split \
          (train-vs-split reference {:.1}). Bone cv in %. Pose spread: how widely the stretches' average \
          poses differ across motions (`docs/metrics.md`), a diagnostic of the Fréchet distance, not a \
-         band.\n\n| stretch |",
+         band; stride (how far the toes swing past each other, generated ÷ real) a diagnostic too.\n\n| stretch |",
         h.motions,
         h.seconds,
         h.frames,
@@ -293,8 +293,8 @@ pub fn markdown(h: &Horizon) -> String {
     for (name, _) in MEASURES {
         s += &format!(" {name} |");
     }
-    s += " bone cv | in the air % | Fréchet | pose spread |\n|---|";
-    for _ in 0..MEASURES.len() + 4 {
+    s += " bone cv | in the air % | stride | Fréchet | pose spread |\n|---|";
+    for _ in 0..MEASURES.len() + 5 {
         s += "---|";
     }
     s += "\n| real vs real |";
@@ -302,8 +302,9 @@ pub fn markdown(h: &Horizon) -> String {
         s += &format!(" {:.2}–{:.2} |", sp.lo, sp.hi);
     }
     s += &format!(
-        " | real {:.1} | | {} |\n",
+        " | real {:.1} | real {:.2} m | | {} |\n",
         100.0 * h.real.airborne_share,
+        h.real.stride_m,
         pose_spread_range(h)
     );
     for st in &h.stretches {
@@ -321,9 +322,14 @@ pub fn markdown(h: &Horizon) -> String {
             }
         }
         s += &format!(
-            " {:.2} | {:.1} | {:.1} | {} |\n",
+            " {:.2} | {:.1} | {} | {:.1} | {} |\n",
             100.0 * st.generated.bone_cv,
             100.0 * st.generated.airborne_share,
+            if h.real.stride_m > 0.0 {
+                format!("{:.2}", st.generated.stride_m / h.real.stride_m)
+            } else {
+                "n/a".into()
+            },
             st.frechet,
             pose_spread_ratio(h, st).map_or("n/a".into(), |r| format!("{r:.2}"))
         );
@@ -433,6 +439,27 @@ mod tests {
         }
         let back: Horizon = serde_json::from_value(old).expect("reads back");
         assert!(back.real_pose_spread.is_none() && back.stretches[0].pose_spread.is_none());
+    }
+
+    #[test]
+    fn the_table_shows_the_stride_beside_the_bands_and_n_a_in_old_reports() {
+        let mut h = horizon(
+            MotionStats {
+                stride_m: 0.09,
+                ..stats(1.0)
+            },
+            60.0,
+        );
+        h.real.stride_m = 0.12;
+        let md = markdown(&h);
+        assert!(md.contains("| in the air % | stride | Fréchet |"), "{md}");
+        assert!(md.contains("| real 0.12 m |"), "{md}");
+        let row = md.lines().find(|l| l.starts_with("| 0.0–4.3 s")).unwrap();
+        assert!(row.contains("| 0.75 | 60.0 |"), "{row}");
+        h.real.stride_m = 0.0;
+        let md = markdown(&h);
+        let row = md.lines().find(|l| l.starts_with("| 0.0–4.3 s")).unwrap();
+        assert!(row.contains("| n/a | 60.0 |"), "{row}");
     }
 
     #[test]
