@@ -110,6 +110,9 @@ pub struct Asked {
     /// Smallest and largest ratio of hips speed, then of contact share, of
     /// [`REAL_DRAWS`] draws of half its real windows to all of them.
     pub real_spread: [(f64, f64); 2],
+    /// The same for the stride (None in reports written before it).
+    #[serde(default)]
+    pub stride_spread: Option<(f64, f64)>,
 }
 
 impl Asked {
@@ -282,6 +285,7 @@ pub fn ask_each(
         let gen_poses: Vec<Vec<Pose>> = gen.iter().map(global).collect();
         let un_poses: Vec<Vec<Pose>> = unasked.iter().map(global).collect();
         let missing = || EvalError::Invalid(format!("no windows of {cat}"));
+        let sp = spread(&real, spec.seed);
         out.push(Asked {
             category: cat.name().to_string(),
             train_windows: count("train", cat),
@@ -295,7 +299,8 @@ pub fn ask_each(
             real: plain(&real).ok_or_else(missing)?,
             generated: plain(&gen_poses).ok_or_else(missing)?,
             unasked: plain(&un_poses).ok_or_else(missing)?,
-            real_spread: spread(&real, spec.seed),
+            real_spread: [sp[0], sp[1]],
+            stride_spread: Some(sp[2]),
         });
         all_labels.extend(std::iter::repeat_n(cat, gen.len()));
         all_feat.extend(go.features);
@@ -329,14 +334,14 @@ pub fn ask_each(
     }))
 }
 
-/// Ratios of hips speed and contact share of [`REAL_DRAWS`] draws of half
-/// of `real` to all of it: smallest and largest of each.
-fn spread(real: &[Vec<Pose>], seed: u64) -> [(f64, f64); 2] {
+/// Ratios of hips speed, contact share and stride of [`REAL_DRAWS`] draws
+/// of half of `real` to all of it: smallest and largest of each.
+fn spread(real: &[Vec<Pose>], seed: u64) -> [(f64, f64); 3] {
     let opts = Options::default();
     let all = motion_stats(real, &opts);
     let k = (real.len() / 2).max(1);
     let mut rng = motion_vrnn::rng::Rng::new(seed, 0x5B2E);
-    let mut out = [(f64::INFINITY, f64::NEG_INFINITY); 2];
+    let mut out = [(f64::INFINITY, f64::NEG_INFINITY); 3];
     for _ in 0..REAL_DRAWS {
         let pick: Vec<Vec<Pose>> = rng
             .permutation(real.len())
@@ -348,6 +353,7 @@ fn spread(real: &[Vec<Pose>], seed: u64) -> [(f64, f64); 2] {
         for (o, (g, r)) in out.iter_mut().zip([
             (s.root_speed_m_s, all.root_speed_m_s),
             (s.contact_share, all.contact_share),
+            (s.stride_m, all.stride_m),
         ]) {
             let ratio = g / r.max(1e-12);
             *o = (o.0.min(ratio), o.1.max(ratio));
@@ -368,6 +374,12 @@ pub(crate) fn as_windows(
         length,
         features,
     }
+}
+
+/// A real-vs-real range as printed beside a ratio: `[lo–hi]`, or nothing
+/// for reports written before it.
+fn bracket(r: Option<(f64, f64)>) -> String {
+    r.map_or(String::new(), |(lo, hi)| format!("[{lo:.2}–{hi:.2}]"))
 }
 
 /// The section of `eval.md`.
@@ -396,7 +408,7 @@ pub fn markdown(a: &AskedSet) -> String {
             (true, m) => m.join(", "),
         };
         s += &format!(
-            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
+            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) {} | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
             c.category,
             c.train_windows,
             c.split_windows,
@@ -416,6 +428,7 @@ pub fn markdown(a: &AskedSet) -> String {
             c.real.stride_m,
             c.generated.stride_m,
             c.unasked.stride_m,
+            bracket(c.stride_spread),
             c.real.jerk_m_s3,
             c.generated.jerk_m_s3,
             c.real.apd_m.map_or("–".into(), |v| format!("{v:.2}")),
@@ -503,7 +516,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
         let stride = if each.iter().any(|a| a.real.stride_m <= 0.0) {
             "n/a".to_string()
         } else {
-            ratio(|p| p.stride_m)
+            format!("{} {}", ratio(|p| p.stride_m), bracket(c.stride_spread))
         };
         // The goals on the mean over the seeds.
         let mean =
@@ -598,6 +611,7 @@ mod tests {
             generated: plain(speed, contact),
             unasked: plain(0.2, 0.9),
             real_spread: [(0.9, 1.1), (0.95, 1.05)],
+            stride_spread: Some((0.8, 1.2)),
         }
     }
 
@@ -636,7 +650,10 @@ mod tests {
         let s = markdown(&set);
         let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
         // Stride: real → asked (unasked).
-        assert!(row.contains("| 0.30 → **0.18** (0.30) |"), "{row}");
+        assert!(
+            row.contains("| 0.30 → **0.18** (0.30) [0.80–1.20] |"),
+            "{row}"
+        );
         assert!(row.ends_with("| speed |"), "{row}");
         // Numbers printed whole (a precision on a string would cut it to "4").
         assert!(
@@ -671,7 +688,10 @@ mod tests {
         let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
         assert!(row.contains("90 ± 0"), "{row}");
         assert!(row.contains("0.80 ± 0.28"), "{row}");
-        assert!(row.contains("| 1.00 ± 0.00 | none | 0 (speed) |"), "{row}");
+        assert!(
+            row.contains("| 1.00 ± 0.00 [0.80–1.20] | none | 0 (speed) |"),
+            "{row}"
+        );
         assert!(s.contains("![one row per category](sheet.png)"));
     }
 }
