@@ -389,9 +389,9 @@ pub fn markdown(a: &AskedSet) -> String {
         "\n## Asked for each category (guidance {})\n\n\
          {} motions per category, each continuing a training window of it; beside them (\"unasked\") the \
          same contexts and noise with no category asked. Recognition: the share the classifier puts in the \
-         category asked for, against its share on the real {split} windows of it. Speed and contact: real \
+         category asked for, against its share on the real {split} windows of it. Speed, contact and stride: real \
          windows of the category (all splits) → asked → unasked, with the ratio of draws of half the real \
-         windows to all of them in brackets. Goals (categories with at least {} training windows): \
+         windows to all of them in brackets (stride: a diagnostic, not a goal). Goals (categories with at least {} training windows): \
          recognised ≥ 0.9 × real, speed and contact 0.75–1.25 × real.\n\n\
          | category | train / {split} windows | recognised: real {split} → asked (unasked) | hips speed m/s | contact | stride m | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
          |---|---|---|---|---|---|---|---|---|---|\n",
