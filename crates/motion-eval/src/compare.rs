@@ -172,8 +172,48 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
     if let Some(classifier) = &o.classifier {
         md += &conditioned(o, classifier, &images, log)?;
     }
+    // Sections written by hand into the page it replaces go back in.
+    if let Ok(old) = std::fs::read_to_string(&o.page) {
+        md = keep_sections(&md, &old);
+    }
     motion_render::write_file(&o.page, md.as_bytes())?;
     Ok(md)
+}
+
+/// The line that starts a hand-written section of the results page which
+/// `compare` keeps when it rewrites the page: the section runs from this
+/// line to the next `## ` heading after its own.
+pub const KEPT: &str = "<!-- kept by compare -->";
+
+/// `page` with every [`KEPT`] section of `old`, in their order, put back
+/// before `page`'s "## Goals met" heading (at its end without one).
+pub fn keep_sections(page: &str, old: &str) -> String {
+    let lines: Vec<&str> = old.lines().collect();
+    let mut kept = String::new();
+    let mut i = 0;
+    while i < lines.len() {
+        if lines[i].trim() != KEPT {
+            i += 1;
+            continue;
+        }
+        // The marker, the section's own heading, and everything up to the
+        // next heading of that level.
+        let end = (i + 2..lines.len())
+            .find(|&j| lines[j].starts_with("## ") || lines[j].trim() == KEPT)
+            .unwrap_or(lines.len());
+        for l in &lines[i..end] {
+            kept += l;
+            kept += "\n";
+        }
+        i = end;
+    }
+    if kept.is_empty() {
+        return page.to_string();
+    }
+    match page.find("\n## Goals met") {
+        Some(at) => format!("{}{kept}{}", &page[..at + 1], &page[at + 1..]),
+        None => format!("{page}{kept}"),
+    }
 }
 
 /// The `minute` preset's model, as its section says.
@@ -705,8 +745,33 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::average;
+    use super::{average, keep_sections, KEPT};
     use serde_json::json;
+
+    #[test]
+    fn hand_written_sections_survive_a_rewrite_of_the_page() {
+        let page = "# Results\n\n| t |\n\n## Goals met (issue 11)\n\nnew\n";
+        let old = format!(
+            "# Results\n\nold table\n\n{KEPT}\n## By hand\n\ntext\n\n{KEPT}\n## Also\n\nmore\n\n\
+             ## Goals met (issue 11)\n\nold\n"
+        );
+        assert_eq!(
+            keep_sections(page, &old),
+            format!(
+                "# Results\n\n| t |\n\n{KEPT}\n## By hand\n\ntext\n\n{KEPT}\n## Also\n\nmore\n\n\
+                 ## Goals met (issue 11)\n\nnew\n"
+            )
+        );
+        // Rewriting a page that has its sections already keeps it as it is.
+        let once = keep_sections(page, &old);
+        assert_eq!(keep_sections(page, &once), once);
+        // Nothing kept: the page as written; no "Goals met": at the end.
+        assert_eq!(keep_sections(page, "# Results\n"), page);
+        assert_eq!(
+            keep_sections("# R\n", &old),
+            format!("# R\n{KEPT}\n## By hand\n\ntext\n\n{KEPT}\n## Also\n\nmore\n\n")
+        );
+    }
 
     #[test]
     fn reports_average_field_by_field() {
