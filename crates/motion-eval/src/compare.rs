@@ -185,8 +185,11 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
 /// line to the next `## ` heading after its own.
 pub const KEPT: &str = "<!-- kept by compare -->";
 
+/// The results page's heading before which [`KEPT`] sections go back.
+const GOALS_HEADING: &str = "## Goals met (issue 11)";
+
 /// `page` with every [`KEPT`] section of `old`, in their order, put back
-/// before `page`'s "## Goals met" heading (at its end without one).
+/// before `page`'s [`GOALS_HEADING`] (at its end without one).
 pub fn keep_sections(page: &str, old: &str) -> String {
     let lines: Vec<&str> = old.lines().collect();
     let mut kept = String::new();
@@ -210,7 +213,7 @@ pub fn keep_sections(page: &str, old: &str) -> String {
     if kept.is_empty() {
         return page.to_string();
     }
-    match page.find("\n## Goals met") {
+    match page.find(&format!("\n{GOALS_HEADING}")) {
         Some(at) => format!("{}{kept}{}", &page[..at + 1], &page[at + 1..]),
         None => format!("{page}{kept}"),
     }
@@ -586,7 +589,7 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
     s += "\nTraining time is the wall-clock time of a run's epochs as it was trained (`metrics.jsonl`; a probe of \
           several initialisations before them, `--inits`, is not counted), so it depends on what else the machine \
           was doing then; `cargo xtask bench-train` compares speeds.\n";
-    s += "\n## Goals met (issue 11): on the mean over the seeds, and seed by seed\n\n";
+    s += &format!("\n{GOALS_HEADING}: on the mean over the seeds, and seed by seed\n\n");
     s += &header("goal", table);
     let means = table
         .iter()

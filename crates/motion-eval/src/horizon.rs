@@ -313,23 +313,23 @@ pub fn markdown(h: &Horizon) -> String {
             st.start_s,
             st.start_s + h.frames as f64 / 30.0
         );
-        for (_, f) in MEASURES {
+        // Generated ÷ real, n/a where real is 0 (the stride in old reports).
+        let ratio = |f: fn(&MotionStats) -> f64| {
             let real = f(&h.real);
             if real.abs() > 1e-12 {
-                s += &format!(" {:.2} |", f(&st.generated) / real);
+                format!("{:.2}", f(&st.generated) / real)
             } else {
-                s += " n/a |";
+                "n/a".to_string()
             }
+        };
+        for (_, f) in MEASURES {
+            s += &format!(" {} |", ratio(f));
         }
         s += &format!(
             " {:.2} | {:.1} | {} | {:.1} | {} |\n",
             100.0 * st.generated.bone_cv,
             100.0 * st.generated.airborne_share,
-            if h.real.stride_m > 0.0 {
-                format!("{:.2}", st.generated.stride_m / h.real.stride_m)
-            } else {
-                "n/a".into()
-            },
+            ratio(|m| m.stride_m),
             st.frechet,
             pose_spread_ratio(h, st).map_or("n/a".into(), |r| format!("{r:.2}"))
         );

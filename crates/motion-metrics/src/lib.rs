@@ -269,10 +269,9 @@ pub fn bone_cv(m: &[Pose]) -> f64 {
     for (k, p) in JOINT_PARENTS.iter().enumerate() {
         let Some(p) = *p else { continue };
         let l: Vec<f64> = m.iter().map(|pose| norm(sub(pose[k], pose[p]))).collect();
-        let mean = l.iter().sum::<f64>() / l.len() as f64;
-        let var = l.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / l.len() as f64;
+        let (mean, std) = mean_std(&l);
         if mean > 0.0 {
-            sum += var.sqrt() / mean;
+            sum += std / mean;
         }
         bones += 1;
     }
@@ -355,9 +354,15 @@ pub fn stride(m: &[Pose]) -> f64 {
     if ahead.len() < 2 {
         return 0.0;
     }
-    let n = ahead.len() as f64;
-    let mean = ahead.iter().sum::<f64>() / n;
-    (ahead.iter().map(|a| (a - mean).powi(2)).sum::<f64>() / n).sqrt()
+    mean_std(&ahead).1
+}
+
+/// Mean and (population) standard deviation of `v` (not empty).
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
+    (mean, var.sqrt())
 }
 
 /// Turning rate of a motion: the mean absolute change, from frame to frame,
