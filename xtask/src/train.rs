@@ -51,6 +51,9 @@ pub struct TrainArgs {
     /// Planted toes (contact loss) must also move slower than this, m/s (0: height alone; docs/training.md).
     #[arg(long)]
     pub contact_speed: Option<f64>,
+    /// Weight of the swing loss: the prior's one-step predictions must swing as far as real frames (0: off; docs/training.md).
+    #[arg(long)]
+    pub swing_weight: Option<f64>,
     /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
     #[arg(long)]
     pub latent: Option<usize>,
@@ -190,6 +193,7 @@ impl TrainArgs {
             rollouts_at_temperature: self.rollouts_at_temperature,
             float_limit: self.float_limit,
             contact_speed: self.contact_speed,
+            swing_weight: self.swing_weight,
             inits: self.inits,
             feed_run: self.feed_run,
         }

@@ -173,6 +173,12 @@ pub struct Parts {
     /// the root back (`docs/training.md`, "Planted means still").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_speed: Option<f64>,
+    /// Weight of the swing loss (None: off): each window's one-step
+    /// predictions drawn from the prior, as sampling draws them, must swing
+    /// as far as the real frames, feature by feature (the standard
+    /// deviation over the window's frames; [`swing_loss`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub swing: Option<f64>,
 }
 
 /// The normalised features whose means make the pace ([`Parts::pace`]):
@@ -477,6 +483,7 @@ impl Config {
             rollouts_at_temperature: false,
             float_limit: None,
             contact_speed: None,
+            swing: None,
             ..p.clone()
         };
         MODELS
@@ -728,6 +735,7 @@ impl Vrnn {
         positive("temperature", c.parts.temperature)?;
         positive("float limit", c.parts.float_limit)?;
         positive("contact speed", c.parts.contact_speed)?;
+        positive("swing weight", c.parts.swing)?;
         let gaussian = |input: usize, vb: VarBuilder| -> Result<[Lin; 2]> {
             Ok([
                 Lin::new(input, c.latent, vb.pp("mean"))?,
@@ -1047,6 +1055,32 @@ impl Vrnn {
     /// each later one ([`Parts::feed_rounds`]; with 0, to every depth in one
     /// pass: [`Vrnn::fed_in_sequence`]). No gradient flows through the
     /// replacement.
+    /// Each step's one-step prediction drawn from the prior `p` (given the
+    /// recurrence's states `h`) and decoded, as sampling makes a frame; the
+    /// first step draws from N(0, I). `eps`: the noise, scaled by the
+    /// sampling temperature where rollouts are drawn at it.
+    fn prior_decoded(
+        &self,
+        p: &Tensor,
+        h: &Tensor,
+        eps: &Tensor,
+        lengths: Option<&Tensor>,
+        bias: Option<&Bias>,
+    ) -> Result<Tensor> {
+        let e = match self.config.parts.temperature {
+            Some(tau) if self.config.parts.rollouts_at_temperature => (eps * tau)?,
+            _ => eps.clone(),
+        };
+        let t = e.dim(1)?;
+        let z = draw(p, &e, self.config.latent)?;
+        let z = if t > 1 {
+            Tensor::cat(&[&e.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
+        } else {
+            e
+        };
+        Ok(self.decode(&z, h, lengths, bias)?.0)
+    }
+
     fn fed_back(
         &self,
         x: &Tensor,
@@ -1297,6 +1331,10 @@ impl MotionModel for Vrnn {
             let still = self.config.parts.still_units();
             extra = (extra + (feet::contact_loss(l, x, &body.stats(), still)? / b)?)?;
         }
+        if let Some(w) = self.config.parts.swing {
+            let own = self.prior_decoded(&p, &s.h, &eps, lengths.as_ref(), bias)?;
+            extra = (extra + (swing_loss(&own, x)? * (w / b))?)?;
+        }
         Ok(Losses {
             recon: (recon / b)?,
             kl: (kl / b)?,
@@ -1517,6 +1555,32 @@ fn positive(what: &str, v: Option<f64>) -> Result<()> {
 
 /// A draw from a Gaussian head's `[μ | logit σ]` (last dimension `2Z`)
 /// with noise `e`.
+/// Frames averaged together before the swing loss measures a spread
+/// ([`swing_loss`]): a low pass, so that jitter does not count as swing.
+pub const SWING_FRAMES: usize = 8;
+
+/// The swing loss of `own: [B, T, F]` against the real `x`: per window and
+/// feature, the standard deviation over the window of the means of
+/// [`SWING_FRAMES`] consecutive frames; its squared difference summed and
+/// scaled by `T` (so it weighs like a per-frame error).
+pub fn swing_loss(own: &Tensor, x: &Tensor) -> Result<Tensor> {
+    let (b, t, f) = own.dims3()?;
+    let n = t / SWING_FRAMES;
+    if n < 2 {
+        return Tensor::zeros((), own.dtype(), own.device());
+    }
+    let spread = |a: &Tensor| -> Result<Tensor> {
+        let a = a
+            .narrow(1, 0, n * SWING_FRAMES)?
+            .reshape((b, n, SWING_FRAMES, f))?
+            .mean(2)?;
+        let centred = a.broadcast_sub(&a.mean_keepdim(1)?)?;
+        (centred.sqr()?.mean(1)? + 1e-6)?.sqrt()
+    };
+    let x = x.narrow(2, 0, f)?.contiguous()?;
+    (spread(own)? - spread(&x)?)?.sqr()?.sum_all()? * t as f64
+}
+
 fn draw(p: &Tensor, e: &Tensor, latent: usize) -> Result<Tensor> {
     let mu = p.narrow(D::Minus1, 0, latent)?;
     let sigma =
@@ -1556,6 +1620,27 @@ pub fn device_name(d: &Device) -> String {
 mod tests {
     use super::*;
     use mocap_ingest::skeleton::JOINT_PARENTS;
+
+    /// Hand-computed: a window at 0 for 8 frames and at 2 for 8 more
+    /// swings by 1 (the population standard deviation of the two means)
+    /// against a still one's √1e-6; jitter within 8 frames is no swing.
+    #[test]
+    fn the_swing_loss_measures_the_spread_of_eight_frame_means() {
+        let t = |v: Vec<f32>| Tensor::from_vec(v, (1, 16, 1), &Device::Cpu).unwrap();
+        let value = |a: &Tensor, b: &Tensor| swing_loss(a, b).unwrap().to_scalar::<f32>().unwrap();
+        let step = t((0..16).map(|i| if i < 8 { 0.0 } else { 2.0 }).collect());
+        let still = t(vec![0.0; 16]);
+        let expected = ((1.0f64 + 1e-6).sqrt() - 1e-3).powi(2) * 16.0;
+        assert!((value(&step, &still) as f64 - expected).abs() < 1e-4);
+        assert_eq!(value(&step, &step), 0.0);
+        let jitter = t((0..16)
+            .map(|i| if i % 2 == 0 { 1.0 } else { -1.0 })
+            .collect());
+        assert!(value(&jitter, &still) < 1e-6);
+        // Fewer than two groups of frames: nothing to measure.
+        let short = Tensor::zeros((1, 12, 1), DType::F32, &Device::Cpu).unwrap();
+        assert_eq!(value(&short, &short), 0.0);
+    }
 
     /// Statistics that leave values as they are (mean 0, std 1).
     fn identity_body() -> Body {

@@ -177,6 +177,8 @@ pub struct Overrides {
     /// Planted toes in the contact loss must also move slower than this
     /// (m/s; [`crate::model::Parts::contact_speed`]; 0: height alone).
     pub contact_speed: Option<f64>,
+    /// Weight of the swing loss ([`crate::model::Parts::swing`]; 0: off).
+    pub swing_weight: Option<f64>,
     /// Initialisations tried, each for [`crate::train::INIT_EPOCHS`]
     /// epochs, the best on validation kept ([`crate::train::Inits`]; 1: the
     /// seed's alone).
@@ -218,6 +220,9 @@ impl Overrides {
         }
         if let Some(v) = self.contact_speed {
             parts.contact_speed = (v != 0.0).then_some(v);
+        }
+        if let Some(v) = self.swing_weight {
+            parts.swing = (v != 0.0).then_some(v);
         }
         if let Some(v) = self.latent {
             cfg.model.latent = v;

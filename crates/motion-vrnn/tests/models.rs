@@ -528,6 +528,34 @@ fn still_toes_change_the_foot_terms_only() {
     }
 }
 
+/// The swing loss (`swing`) changes the extra terms of the loss only: not
+/// the reconstruction, the KL or sampling; its weight must be positive.
+#[test]
+fn the_swing_loss_changes_the_extra_terms_only() {
+    let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let (start, e, _, _) = generation_probe();
+    let (x, eps) = batch(2, 24, 5);
+    let m = model("motion", 6);
+    let mut c = m.model.config().clone();
+    c.parts.swing = Some(1.0);
+    let swing = init_model(&c, 6, &Device::Cpu).unwrap();
+    let (a, b) = (
+        m.model.losses(&x, &eps, None, None).unwrap(),
+        swing.model.losses(&x, &eps, None, None).unwrap(),
+    );
+    assert_eq!(flat(a.recon), flat(b.recon));
+    assert_eq!(flat(a.kl), flat(b.kl));
+    assert!(flat(b.extra)[0] > flat(a.extra)[0]);
+    assert_eq!(
+        flat(m.model.sample(&e, Some(&start), None).unwrap()),
+        flat(swing.model.sample(&e, Some(&start), None).unwrap())
+    );
+    for bad in [0.0, -1.0] {
+        c.parts.swing = Some(bad);
+        assert!(init_model(&c, 6, &Device::Cpu).is_err(), "{bad}");
+    }
+}
+
 /// The mask has the share asked for, and is a pure function of seed and step.
 #[test]
 fn feed_masks_have_their_share() {
