@@ -30,9 +30,7 @@ pub struct RunArgs {
     /// Split of real windows to reconstruct and compare with.
     #[arg(long, default_value = "test")]
     pub split: String,
-    /// Real frames each generated motion continues, of a training window
-    /// (`sample`, `eval --contexts train`) or of its `--split` window
-    /// (`eval`); read through the posterior, the motion starts at the last.
+    /// Real frames each generated motion continues, of a training window (`sample`, `eval --contexts train`) or of its `--split` window (`eval`); read through the posterior, the motion starts at the last.
     #[arg(long, default_value_t = generate::CONTEXT)]
     pub context: usize,
     /// Sampling temperature (the prior's std times this) instead of the model's own (1: as trained).
@@ -87,15 +85,13 @@ pub struct EvalArgs {
     /// set does), `train` continues random training windows as `sample` does.
     #[arg(long, default_value = "split")]
     contexts: Contexts,
-    /// Also roll motions out for this many seconds and measure every
-    /// window-long stretch against all real windows (0: off).
+    /// Also roll motions out for this many seconds and measure every window-long stretch against all real windows (0: off).
     #[arg(long, default_value_t = 60.0)]
     horizon: f64,
     /// Motions rolled out for --horizon.
     #[arg(long, default_value_t = 256)]
     horizon_motions: usize,
-    /// A classifier directory (`train-classifier`): also measure generated
-    /// motion in its feature space.
+    /// A classifier directory (`train-classifier`): also measure generated motion in its feature space.
     #[arg(long)]
     classifier: Option<PathBuf>,
     /// Output directory for eval.json and eval.md (default: RUN/eval).

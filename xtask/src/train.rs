@@ -73,8 +73,7 @@ pub struct TrainArgs {
     /// Adam learning rate.
     #[arg(long)]
     pub lr: Option<f64>,
-    /// Learning rate of the last epoch as a share of --lr, reached along a
-    /// half cosine over the second half of the epochs (1: constant).
+    /// Learning rate of the last epoch as a share of --lr, reached along a half cosine over the second half of the epochs (1: constant).
     #[arg(long)]
     pub lr_final: Option<f64>,
     /// Seed of initialisation, shuffling and noise.
@@ -95,21 +94,16 @@ pub struct TrainArgs {
     /// Early-stopping patience in epochs (0: off).
     #[arg(long)]
     pub early_stopping: Option<usize>,
-    /// How `best` is chosen: `generation` (motions generated every
-    /// --judge-every epochs, measured against the validation windows) or
-    /// `loss` (lowest validation loss; the paper preset's choice).
+    /// How `best` is chosen: `generation` (motions generated every --judge-every epochs, measured against the validation windows) or `loss` (lowest validation loss; the paper preset's choice).
     #[arg(long)]
     pub select: Option<SelectBy>,
     /// Epochs between two judgements of generated motion (--select generation).
     #[arg(long)]
     pub judge_every: Option<usize>,
-    /// Window-long stretches the judge rolls its motions out for (scores
-    /// the first and the last; 1: one window).
+    /// Window-long stretches the judge rolls its motions out for (scores the first and the last; 1: one window).
     #[arg(long)]
     pub judge_stretches: Option<usize>,
-    /// `category` (the `standard` preset's): condition on each window's
-    /// category, so `sample --category walk` can ask for one; `category+pace`
-    /// (`minute`'s): and on its pace; `none`: neither (`quick`, `paper`).
+    /// `category` (the `standard` preset's): condition on each window's category, so `sample --category walk` can ask for one; `category+pace` (`minute`'s): and on its pace; `none`: neither (`quick`, `paper`).
     #[arg(long)]
     pub condition: Option<ConditionOn>,
     /// Share of windows trained without their category (--condition category).
@@ -279,7 +273,15 @@ pub fn bench(a: BenchArgs) -> Result<()> {
     let py = a.pytorch.as_deref().map(|p| (p, script.as_path()));
     let device = motion_vrnn::model::default_device();
     let print = &mut |line: &str| println!("{line}");
-    bench::report(&a.models, &a.batch, a.steps, a.autograd, py, &device, print)?;
+    let b = bench::Bench {
+        models: &a.models,
+        batches: &a.batch,
+        steps: a.steps,
+        reference: a.autograd,
+        pytorch: py,
+        rounds: a.rounds,
+    };
+    bench::report(&b, &device, print)?;
     Ok(())
 }
 
@@ -297,11 +299,12 @@ pub struct BenchArgs {
     /// Also time each model through candle ops and autograd (the blocks' reference path).
     #[arg(long)]
     autograd: bool,
-    /// A Python with PyTorch: also time the paper's model in PyTorch
-    /// eager (`xtask/py/pytorch_vrnn_step.py`) and print every model's
-    /// speed-up against it.
+    /// A Python with PyTorch: also time the paper's model in PyTorch eager (`xtask/py/pytorch_vrnn_step.py`) and print every model's speed-up against it.
     #[arg(long, value_name = "PYTHON")]
     pytorch: Option<PathBuf>,
+    /// Run the whole bench (PyTorch included) this many times in turn and give each speed-up as the median over the rounds, with its range.
+    #[arg(long, default_value_t = 1)]
+    rounds: usize,
 }
 
 /// `cargo xtask train-classifier` ([`motion_vrnn::classifier`]).

@@ -229,52 +229,178 @@ pub fn speedup_goal(batch: usize) -> f64 {
     }
 }
 
+/// What `bench-train` runs ([`report`]).
+pub struct Bench<'a> {
+    /// Models of [`bench_models`] (all of them when empty).
+    pub models: &'a [String],
+    /// Batch sizes.
+    pub batches: &'a [usize],
+    /// Timed steps per model and batch size.
+    pub steps: usize,
+    /// Also through candle ops (autograd).
+    pub reference: bool,
+    /// `(python, script)`: PyTorch eager on the paper's model as well.
+    pub pytorch: Option<(&'a Path, &'a Path)>,
+    /// Times the whole bench runs, PyTorch included, one after the other
+    /// (at least 1): on a noisy machine each speed-up is then the median
+    /// over the rounds of one round's models against that round's PyTorch.
+    pub rounds: usize,
+}
+
+/// One round of the bench: every model's fused timings, and PyTorch's
+/// median step per batch size in its stepwise and hoisted forms.
+pub struct Round {
+    /// The models' fused rows.
+    pub rows: Vec<StepTiming>,
+    /// `(batch, seconds)`, stepwise.
+    pub stepwise: Vec<(usize, f64)>,
+    /// `(batch, seconds)`, hoisted.
+    pub hoisted: Vec<(usize, f64)>,
+}
+
+/// One model at one batch size over the rounds: its median step (seconds)
+/// and its speed-ups against each round's PyTorch, in round order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpeedUp {
+    /// Model name.
+    pub model: String,
+    /// Windows per step.
+    pub batch: usize,
+    /// Median over the rounds of the model's median step, seconds.
+    pub seconds: f64,
+    /// PyTorch stepwise ÷ the model, one per round.
+    pub stepwise: Vec<f64>,
+    /// PyTorch hoisted ÷ the model, one per round.
+    pub hoisted: Vec<f64>,
+}
+
+/// The median of `v` (the mean of the middle two of an even count; NaN
+/// when empty).
+fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
+impl SpeedUp {
+    /// Rounds in which `ratios` reach `goal`.
+    fn met(ratios: &[f64], goal: f64) -> usize {
+        ratios.iter().filter(|&&r| r >= goal).count()
+    }
+}
+
+/// Every model and batch size of the first round, with its speed-ups in
+/// each round (each round's model against the same round's PyTorch).
+pub fn speedups(rounds: &[Round]) -> Vec<SpeedUp> {
+    let Some(first) = rounds.first() else {
+        return Vec::new();
+    };
+    let at = |v: &[(usize, f64)], b: usize| v.iter().find(|x| x.0 == b).map(|x| x.1);
+    first
+        .rows
+        .iter()
+        .map(|r0| {
+            let mut u = SpeedUp {
+                model: r0.model.clone(),
+                batch: r0.batch,
+                seconds: 0.0,
+                stepwise: Vec::new(),
+                hoisted: Vec::new(),
+            };
+            let mut seconds = Vec::new();
+            for round in rounds {
+                let Some(r) = round
+                    .rows
+                    .iter()
+                    .find(|r| r.model == r0.model && r.batch == r0.batch)
+                else {
+                    continue;
+                };
+                seconds.push(r.median);
+                if let (Some(s), Some(h)) =
+                    (at(&round.stepwise, r.batch), at(&round.hoisted, r.batch))
+                {
+                    u.stepwise.push(s / r.median);
+                    u.hoisted.push(h / r.median);
+                }
+            }
+            u.seconds = median(&seconds);
+            u
+        })
+        .collect()
+}
+
 /// The `bench-train` report, line by line to `out`: seconds per training
-/// step (forward, backward, Adam) of each model of `models` (every model of
-/// [`bench_models`] when empty) at each batch size on random
-/// windows, and the sampling time; with `reference`, also through candle
-/// ops (autograd); with `pytorch = (python, script)`, every model against
-/// PyTorch eager on the paper's model ([`against_pytorch`]).
-pub fn report(
-    models: &[String],
-    batches: &[usize],
-    steps: usize,
-    reference: bool,
-    pytorch: Option<(&Path, &Path)>,
-    device: &Device,
-    out: &mut dyn FnMut(&str),
-) -> Result<(), TrainError> {
+/// step (forward, backward, Adam) of each model of `b.models` (every model
+/// of [`bench_models`] when empty) at each batch size on random windows,
+/// and the sampling time; with `b.reference`, also through candle ops
+/// (autograd); with `b.pytorch = (python, script)`, every model against
+/// PyTorch eager on the paper's model ([`against_pytorch`]), over
+/// `b.rounds` rounds.
+pub fn report(b: &Bench, device: &Device, out: &mut dyn FnMut(&str)) -> Result<(), TrainError> {
     let every = bench_models();
-    let models = if models.is_empty() { &every } else { models };
-    let steps = steps.max(1);
-    out(&format!(
-        "training step (T = {FRAMES}, forward + backward + Adam) on {device:?}, {} rayon threads; median and min of {steps} steps after 2 warm-up steps",
-        rayon::current_num_threads()
-    ));
-    out(&format!(
-        "{:>9} {:>9} {:>6} {:>10} {:>10} {:>16} {:>12}",
-        "model", "path", "batch", "median s", "min s", "windows*frames/s", "sample 36 s"
-    ));
-    let mut fused = Vec::new();
-    for name in models {
-        for r in time_steps(name, batches, steps, reference, device)? {
-            out(&format!(
-                "{:>9} {:>9} {:>6} {:>10.4} {:>10.4} {:>16.0} {:>12.4}",
-                r.model,
-                r.path,
-                r.batch,
-                r.median,
-                r.min,
-                (r.batch * FRAMES) as f64 / r.median,
-                r.sample
-            ));
-            if r.path == "fused" {
-                fused.push(r);
+    let models = if b.models.is_empty() {
+        &every
+    } else {
+        b.models
+    };
+    let steps = b.steps.max(1);
+    let rounds = b.rounds.max(1);
+    let mut done = Vec::new();
+    for round in 1..=rounds {
+        if rounds > 1 {
+            out(&format!("round {round} of {rounds}"));
+        }
+        out(&format!(
+            "training step (T = {FRAMES}, forward + backward + Adam) on {device:?}, {} rayon threads; median and min of {steps} steps after 2 warm-up steps",
+            rayon::current_num_threads()
+        ));
+        out(&format!(
+            "{:>9} {:>9} {:>6} {:>10} {:>10} {:>16} {:>12}",
+            "model", "path", "batch", "median s", "min s", "windows*frames/s", "sample 36 s"
+        ));
+        let mut fused = Vec::new();
+        for name in models {
+            for r in time_steps(name, b.batches, steps, b.reference, device)? {
+                out(&format!(
+                    "{:>9} {:>9} {:>6} {:>10.4} {:>10.4} {:>16.0} {:>12.4}",
+                    r.model,
+                    r.path,
+                    r.batch,
+                    r.median,
+                    r.min,
+                    (r.batch * FRAMES) as f64 / r.median,
+                    r.sample
+                ));
+                if r.path == "fused" {
+                    fused.push(r);
+                }
             }
         }
+        let Some((python, script)) = b.pytorch else {
+            continue;
+        };
+        let threads = rayon::current_num_threads();
+        let stepwise = pytorch_medians(python, script, b.batches, steps, threads, false)?;
+        let hoisted = pytorch_medians(python, script, b.batches, steps, threads, true)?;
+        out("");
+        out("PyTorch eager, paper model (xtask/py/pytorch_vrnn_step.py), median s per step:");
+        for ((b, s), (_, h)) in stepwise.iter().zip(&hoisted) {
+            out(&format!("  batch {b:>5}: stepwise {s:.4}, hoisted {h:.4}"));
+        }
+        out("");
+        done.push(Round {
+            rows: fused,
+            stepwise,
+            hoisted,
+        });
     }
-    if let Some((python, script)) = pytorch {
-        against_pytorch(python, script, &fused, batches, steps, out)?;
+    if !done.is_empty() {
+        against_pytorch(&speedups(&done), out);
     }
     Ok(())
 }
@@ -282,50 +408,136 @@ pub fn report(
 /// Every model against PyTorch eager running the paper's model on this
 /// machine, in both its forms: *stepwise* (the issue's reference) and
 /// *hoisted* (faster at small batches), with the goal of issue 24
-/// ([`speedup_goal`]).
-fn against_pytorch(
-    python: &Path,
-    script: &Path,
-    rows: &[StepTiming],
-    batches: &[usize],
-    steps: usize,
-    out: &mut dyn FnMut(&str),
-) -> Result<(), TrainError> {
-    let threads = rayon::current_num_threads();
-    let stepwise = pytorch_medians(python, script, batches, steps, threads, false)?;
-    let hoisted = pytorch_medians(python, script, batches, steps, threads, true)?;
-    out("");
-    out("PyTorch eager, paper model (xtask/py/pytorch_vrnn_step.py), median s per step:");
-    for ((b, s), (_, h)) in stepwise.iter().zip(&hoisted) {
-        out(&format!("  batch {b:>5}: stepwise {s:.4}, hoisted {h:.4}"));
-    }
-    out("");
-    out(&format!(
-        "{:>9} {:>6} {:>10} {:>11} {:>10} {:>6} {:>11} {:>10}",
-        "model",
-        "batch",
-        "median s",
-        "÷ stepwise",
-        "÷ hoisted",
-        "goal",
-        "met (step)",
-        "met (hoist)"
-    ));
-    let met = |x: f64, goal: f64| if x >= goal { "yes" } else { "no" };
-    for r in rows {
-        let Some(i) = batches.iter().position(|x| *x == r.batch) else {
-            continue;
-        };
-        let (step, hoist) = (stepwise[i].1 / r.median, hoisted[i].1 / r.median);
-        let goal = speedup_goal(r.batch);
+/// ([`speedup_goal`]). Over several rounds: the median speed-up, its range,
+/// and in how many rounds the goal was met.
+fn against_pytorch(rows: &[SpeedUp], out: &mut dyn FnMut(&str)) {
+    let rounds = rows.first().map_or(0, |r| r.stepwise.len());
+    if rounds > 1 {
         out(&format!(
-            "{:>9} {:>6} {:>10.4} {step:>10.2}x {hoist:>9.2}x {goal:>5.1}x {:>11} {:>10}",
-            r.model,
-            r.batch,
-            r.median,
-            met(step, goal),
-            met(hoist, goal)
+            "over {rounds} rounds: the median of the rounds' speed-ups [lowest–highest], each round's models against that round's PyTorch; met: in how many rounds"
+        ));
+        out(&format!(
+            "{:>9} {:>6} {:>10} {:>25} {:>24} {:>6} {:>11} {:>10}",
+            "model",
+            "batch",
+            "median s",
+            "÷ stepwise [range]",
+            "÷ hoisted [range]",
+            "goal",
+            "met (step)",
+            "met (hoist)"
+        ));
+    } else {
+        out(&format!(
+            "{:>9} {:>6} {:>10} {:>11} {:>10} {:>6} {:>11} {:>10}",
+            "model",
+            "batch",
+            "median s",
+            "÷ stepwise",
+            "÷ hoisted",
+            "goal",
+            "met (step)",
+            "met (hoist)"
         ));
     }
-    Ok(())
+    for r in rows {
+        let goal = speedup_goal(r.batch);
+        let (step, hoist) = (median(&r.stepwise), median(&r.hoisted));
+        let (ms, mh) = (
+            SpeedUp::met(&r.stepwise, goal),
+            SpeedUp::met(&r.hoisted, goal),
+        );
+        if rounds > 1 {
+            let range = |v: &[f64]| {
+                let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+                let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                format!("[{lo:.2}–{hi:.2}]")
+            };
+            out(&format!(
+                "{:>9} {:>6} {:>10.4} {step:>10.2}x {:<14} {hoist:>9.2}x {:<14} {goal:>5.1}x {:>11} {:>10}",
+                r.model,
+                r.batch,
+                r.seconds,
+                range(&r.stepwise),
+                range(&r.hoisted),
+                format!("{ms} of {rounds}"),
+                format!("{mh} of {rounds}")
+            ));
+        } else {
+            let met = |n: usize| if n > 0 { "yes" } else { "no" };
+            out(&format!(
+                "{:>9} {:>6} {:>10.4} {step:>10.2}x {hoist:>9.2}x {goal:>5.1}x {:>11} {:>10}",
+                r.model,
+                r.batch,
+                r.seconds,
+                met(ms),
+                met(mh)
+            ));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(model: &str, batch: usize, median: f64) -> StepTiming {
+        StepTiming {
+            model: model.into(),
+            path: "fused",
+            batch,
+            median,
+            min: median,
+            sample: 0.0,
+        }
+    }
+
+    /// Each round's model against the same round's PyTorch; the median over
+    /// the rounds; the goal counted round by round.
+    #[test]
+    fn speed_ups_are_taken_round_by_round() {
+        let round = |m: f64, s: f64, h: f64| Round {
+            rows: vec![row("minute", 64, m)],
+            stepwise: vec![(64, s)],
+            hoisted: vec![(64, h)],
+        };
+        let u = speedups(&[
+            round(0.02, 0.10, 0.05),
+            round(0.03, 0.18, 0.06),
+            round(0.025, 0.10, 0.05),
+        ]);
+        assert_eq!(u.len(), 1);
+        assert_eq!(u[0].seconds, 0.025);
+        assert_eq!(u[0].stepwise, vec![0.10 / 0.02, 0.18 / 0.03, 0.10 / 0.025]);
+        assert_eq!(median(&u[0].stepwise), 5.0);
+        assert_eq!(SpeedUp::met(&u[0].stepwise, speedup_goal(64)), 2);
+        assert_eq!(u[0].hoisted, vec![2.5, 2.0, 2.0]);
+        assert!(speedups(&[]).is_empty());
+    }
+
+    /// One round prints the table as it always did; several print each
+    /// ratio's range and the rounds that met the goal.
+    #[test]
+    fn the_table_shows_the_range_over_several_rounds() {
+        let u = |stepwise: Vec<f64>, hoisted: Vec<f64>| SpeedUp {
+            model: "minute".into(),
+            batch: 64,
+            seconds: 0.025,
+            stepwise,
+            hoisted,
+        };
+        let mut lines = Vec::new();
+        against_pytorch(&[u(vec![5.2], vec![2.9])], &mut |l| {
+            lines.push(l.to_string())
+        });
+        assert!(lines[1].contains("5.20x") && lines[1].contains("yes") && lines[1].contains("no"));
+        lines.clear();
+        against_pytorch(&[u(vec![5.2, 4.8, 6.0], vec![2.9, 3.0, 2.8])], &mut |l| {
+            lines.push(l.to_string())
+        });
+        assert!(lines[0].starts_with("over 3 rounds"));
+        assert_eq!(median(&[4.0, 1.0]), 2.5);
+        assert!(lines[2].contains("5.20x [4.80–6.00]"), "{}", lines[2]);
+        assert!(lines[2].contains("2 of 3") && lines[2].contains("0 of 3"));
+    }
 }
