@@ -1047,6 +1047,36 @@ impl Vrnn {
         Tensor::from_vec(out, (b, t, BONES), x.device()).map(Some)
     }
 
+    /// The prior's noise: `eps` at the sampling temperature where rollouts
+    /// are drawn at it ([`Parts::rollouts_at_temperature`]), else as is.
+    fn prior_noise(&self, eps: &Tensor) -> Result<Tensor> {
+        match self.config.parts.temperature {
+            Some(tau) if self.config.parts.rollouts_at_temperature => eps * tau,
+            _ => Ok(eps.clone()),
+        }
+    }
+
+    /// Each step's one-step prediction drawn from the prior `p` (given the
+    /// recurrence's states `h`) with the noise `e`, and decoded, as sampling
+    /// makes a frame; the first step is the noise alone (N(0, I)).
+    fn prior_decoded(
+        &self,
+        p: &Tensor,
+        h: &Tensor,
+        e: &Tensor,
+        lengths: Option<&Tensor>,
+        bias: Option<&Bias>,
+    ) -> Result<Tensor> {
+        let t = e.dim(1)?;
+        let z = draw(p, e, self.config.latent)?;
+        let z = if t > 1 {
+            Tensor::cat(&[&e.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
+        } else {
+            e.clone()
+        };
+        Ok(self.decode(&z, h, lengths, bias)?.0)
+    }
+
     /// Scheduled sampling: `x` with the frames where `mask: [B, T]` is 1
     /// replaced by the model's own one-step prediction, as sampling makes
     /// it (latent drawn from the prior, `N(0, I)` at the first step, with
@@ -1055,32 +1085,6 @@ impl Vrnn {
     /// each later one ([`Parts::feed_rounds`]; with 0, to every depth in one
     /// pass: [`Vrnn::fed_in_sequence`]). No gradient flows through the
     /// replacement.
-    /// Each step's one-step prediction drawn from the prior `p` (given the
-    /// recurrence's states `h`) and decoded, as sampling makes a frame; the
-    /// first step draws from N(0, I). `eps`: the noise, scaled by the
-    /// sampling temperature where rollouts are drawn at it.
-    fn prior_decoded(
-        &self,
-        p: &Tensor,
-        h: &Tensor,
-        eps: &Tensor,
-        lengths: Option<&Tensor>,
-        bias: Option<&Bias>,
-    ) -> Result<Tensor> {
-        let e = match self.config.parts.temperature {
-            Some(tau) if self.config.parts.rollouts_at_temperature => (eps * tau)?,
-            _ => eps.clone(),
-        };
-        let t = e.dim(1)?;
-        let z = draw(p, &e, self.config.latent)?;
-        let z = if t > 1 {
-            Tensor::cat(&[&e.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
-        } else {
-            e
-        };
-        Ok(self.decode(&z, h, lengths, bias)?.0)
-    }
-
     fn fed_back(
         &self,
         x: &Tensor,
@@ -1090,12 +1094,9 @@ impl Vrnn {
         lengths: Option<&Tensor>,
         bias: Option<&Bias>,
     ) -> Result<Tensor> {
-        // The prior's draws at the sampling temperature where asked
-        // ([`Parts::rollouts_at_temperature`]); the posterior's noise as is.
-        let e = match self.config.parts.temperature {
-            Some(tau) if self.config.parts.rollouts_at_temperature => (eps * tau)?,
-            _ => eps.clone(),
-        };
+        // The prior's draws at the sampling temperature where asked; the
+        // posterior's noise as is.
+        let e = self.prior_noise(eps)?;
         if self.config.parts.rounds() == 0 {
             let i = Feed {
                 x,
@@ -1111,20 +1112,13 @@ impl Vrnn {
                 false => self.fed_in_sequence(&i),
             };
         }
-        let t = x.dim(1)?;
         let prior = stacked(&self.prior[0], &self.prior[1])?;
         let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
         // One round: the recurrence reads `fed` (the real frames when None).
         let round = |fed: Option<&Tensor>| -> Result<Tensor> {
             let s = self.scan(feat, fed, eps, bias)?;
             let p = plus(prior.forward(&s.h, Act::None)?, bias.map(|b| &b.prior))?;
-            let z = draw(&p, &e, self.config.latent)?;
-            let z = if t > 1 {
-                Tensor::cat(&[&e.narrow(1, 0, 1)?, &z.narrow(1, 1, t - 1)?], 1)?
-            } else {
-                e.clone()
-            };
-            let own = self.decode(&z, &s.h, lengths, bias)?.0.detach();
+            let own = self.prior_decoded(&p, &s.h, &e, lengths, bias)?.detach();
             x + ((own - x)? * &m)?
         };
         let mut fed = round(None)?;
@@ -1332,7 +1326,8 @@ impl MotionModel for Vrnn {
             extra = (extra + (feet::contact_loss(l, x, &body.stats(), still)? / b)?)?;
         }
         if let Some(w) = self.config.parts.swing {
-            let own = self.prior_decoded(&p, &s.h, &eps, lengths.as_ref(), bias)?;
+            let e = self.prior_noise(&eps)?;
+            let own = self.prior_decoded(&p, &s.h, &e, lengths.as_ref(), bias)?;
             extra = (extra + (swing_loss(&own, x)? * (w / b))?)?;
         }
         Ok(Losses {

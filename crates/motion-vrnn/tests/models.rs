@@ -4,7 +4,7 @@
 
 use candle_core::{Device, Tensor, Var};
 use motion_vrnn::blocks;
-use motion_vrnn::model::{COND_WEIGHT, MODELS};
+use motion_vrnn::model::{Parts, COND_WEIGHT, MODELS};
 use motion_vrnn::rng::Rng;
 use motion_vrnn::train::{feed_mask, init_model, named_vars, noise, sharded, Trained};
 use motion_vrnn::{Config, MotionModel};
@@ -500,60 +500,46 @@ fn the_float_limit_holds_generated_figures_down() {
     assert!(init_model(&c, 6, &Device::Cpu).is_err());
 }
 
-/// Planted toes that must be still (`contact_speed`) change the foot
-/// terms of the loss only: not the reconstruction, the KL or sampling; the
-/// speed must be positive.
-#[test]
-fn still_toes_change_the_foot_terms_only() {
+/// `motion` with `set(parts, v)` at `good`: its losses differ from the
+/// plain model's in the extra terms only (not the reconstruction, the KL),
+/// its samples not at all, and a model with any of `bad` does not build.
+fn only_the_extra_terms_change(set: fn(&mut Parts, f64), good: f64, bad: &[f64]) {
     let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    let (start, e, x8, eps) = generation_probe();
+    let (start, e, _, _) = generation_probe();
+    let (x, eps) = batch(2, 24, 5);
     let m = model("motion", 6);
     let mut c = m.model.config().clone();
-    c.parts.contact_speed = Some(0.3);
-    let still = init_model(&c, 6, &Device::Cpu).unwrap();
+    set(&mut c.parts, good);
+    let other = init_model(&c, 6, &Device::Cpu).unwrap();
     let (a, b) = (
-        m.model.losses(&x8, &eps, None, None).unwrap(),
-        still.model.losses(&x8, &eps, None, None).unwrap(),
+        m.model.losses(&x, &eps, None, None).unwrap(),
+        other.model.losses(&x, &eps, None, None).unwrap(),
     );
     assert_eq!(flat(a.recon), flat(b.recon));
     assert_eq!(flat(a.kl), flat(b.kl));
     assert!(rel(&flat(a.extra), &flat(b.extra)) > 1e-3);
     assert_eq!(
         flat(m.model.sample(&e, Some(&start), None).unwrap()),
-        flat(still.model.sample(&e, Some(&start), None).unwrap())
+        flat(other.model.sample(&e, Some(&start), None).unwrap())
     );
-    for bad in [0.0, -0.3] {
-        c.parts.contact_speed = Some(bad);
-        assert!(init_model(&c, 6, &Device::Cpu).is_err(), "{bad}");
+    for &v in bad {
+        set(&mut c.parts, v);
+        assert!(init_model(&c, 6, &Device::Cpu).is_err(), "{v}");
     }
 }
 
-/// The swing loss (`swing`) changes the extra terms of the loss only: not
-/// the reconstruction, the KL or sampling; its weight must be positive.
+/// Planted toes that must be still (`contact_speed`) change the foot
+/// terms of the loss only; the speed must be positive.
+#[test]
+fn still_toes_change_the_foot_terms_only() {
+    only_the_extra_terms_change(|p, v| p.contact_speed = Some(v), 0.3, &[0.0, -0.3]);
+}
+
+/// The swing loss (`swing`) changes the extra terms of the loss only; its
+/// weight must be positive.
 #[test]
 fn the_swing_loss_changes_the_extra_terms_only() {
-    let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    let (start, e, _, _) = generation_probe();
-    let (x, eps) = batch(2, 24, 5);
-    let m = model("motion", 6);
-    let mut c = m.model.config().clone();
-    c.parts.swing = Some(1.0);
-    let swing = init_model(&c, 6, &Device::Cpu).unwrap();
-    let (a, b) = (
-        m.model.losses(&x, &eps, None, None).unwrap(),
-        swing.model.losses(&x, &eps, None, None).unwrap(),
-    );
-    assert_eq!(flat(a.recon), flat(b.recon));
-    assert_eq!(flat(a.kl), flat(b.kl));
-    assert!(flat(b.extra)[0] > flat(a.extra)[0]);
-    assert_eq!(
-        flat(m.model.sample(&e, Some(&start), None).unwrap()),
-        flat(swing.model.sample(&e, Some(&start), None).unwrap())
-    );
-    for bad in [0.0, -1.0] {
-        c.parts.swing = Some(bad);
-        assert!(init_model(&c, 6, &Device::Cpu).is_err(), "{bad}");
-    }
+    only_the_extra_terms_change(|p, v| p.swing = Some(v), 1.0, &[0.0, -1.0]);
 }
 
 /// The mask has the share asked for, and is a pure function of seed and step.
