@@ -176,7 +176,7 @@ pub struct Parts {
     /// Weight of the swing loss (None: off): each window's one-step
     /// predictions drawn from the prior, as sampling draws them, must swing
     /// as far as the real frames, feature by feature (the standard
-    /// deviation over the window's frames; [`swing_loss`]).
+    /// deviation over the window of 8-frame means; [`swing_loss`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub swing: Option<f64>,
 }
@@ -1548,8 +1548,6 @@ fn positive(what: &str, v: Option<f64>) -> Result<()> {
     }
 }
 
-/// A draw from a Gaussian head's `[μ | logit σ]` (last dimension `2Z`)
-/// with noise `e`.
 /// Frames averaged together before the swing loss measures a spread
 /// ([`swing_loss`]): a low pass, so that jitter does not count as swing.
 pub const SWING_FRAMES: usize = 8;
@@ -1576,6 +1574,8 @@ pub fn swing_loss(own: &Tensor, x: &Tensor) -> Result<Tensor> {
     (spread(own)? - spread(&x)?)?.sqr()?.sum_all()? * t as f64
 }
 
+/// A draw from a Gaussian head's `[μ | logit σ]` (last dimension `2Z`)
+/// with noise `e`.
 fn draw(p: &Tensor, e: &Tensor, latent: usize) -> Result<Tensor> {
     let mu = p.narrow(D::Minus1, 0, latent)?;
     let sigma =
