@@ -25,8 +25,7 @@ enum SplitByArg {
 
 #[derive(Args)]
 pub struct DatasetArgs {
-    /// Directory, .zip archive or http(s) URL of CMU .bvh / .asf+.amc files
-    /// (repeat to combine). URLs are downloaded once into --cache.
+    /// Directory, .zip archive or http(s) URL of CMU .bvh / .asf+.amc files (repeat to combine). URLs are downloaded once into --cache.
     #[arg(long = "source", default_value = CMU_ALLASFAMC_URL)]
     sources: Vec<String>,
     /// Output directory (replaced atomically).
@@ -53,27 +52,22 @@ pub struct DatasetArgs {
     /// Floor applied to every feature's standard deviation.
     #[arg(long, default_value_t = 1e-3)]
     std_floor: f64,
-    /// CSV of `take,fps` rows overriding the built-in frame-rate table
-    /// (CMU's trials.csv works as is).
+    /// CSV of `take,fps` rows overriding the built-in frame-rate table (CMU's trials.csv works as is).
     #[arg(long)]
     fps_table: Option<PathBuf>,
     /// Keep the ASF thorax length (the full ASF skeleton) instead of the BVH-compatible 0.
     #[arg(long)]
     full_asf_skeleton: bool,
-    /// ASF skeleton for AMC files whose own is not found beside them (after
-    /// NN.asf, the only .asf in the folder, an .asf starting with the subject
-    /// number). Meant for one collection; applies to every --source.
+    /// ASF skeleton for AMC files whose own is not found beside them (after NN.asf, the only .asf in the folder, an .asf starting with the subject number). Meant for one collection; applies to every --source.
     #[arg(long)]
     asf: Option<PathBuf>,
-    /// File of take ids to leave out, one per line, `#` comments (the audit's
-    /// flagged.txt works as is). Recorded in the manifest.
+    /// File of take ids to leave out, one per line, `#` comments (the audit's flagged.txt works as is). Recorded in the manifest.
     #[arg(long)]
     exclude: Option<PathBuf>,
     /// File of `take,category` lines for takes that are not CMU trials (or to override). Recorded in the manifest.
     #[arg(long)]
     categories: Option<PathBuf>,
-    /// Skip files that end inside their motion (reason `truncated`) instead
-    /// of keeping their complete frames with a warning. Recorded in the manifest.
+    /// Skip files that end inside their motion (reason `truncated`) instead of keeping their complete frames with a warning. Recorded in the manifest.
     #[arg(long)]
     strict: bool,
     /// Worker threads (default: all cores).
@@ -88,8 +82,7 @@ pub struct DatasetArgs {
     /// Print one machine-readable line for bench-dataset.
     #[arg(long, hide = true)]
     bench_line: bool,
-    /// Parquet compression and float encoding (bench-dataset --encodings
-    /// compares them): snappy, snappy_byte_stream_split, zstd, zstd_byte_stream_split.
+    /// Parquet compression and float encoding (bench-dataset --encodings compares them): snappy, snappy_byte_stream_split, zstd, zstd_byte_stream_split.
     #[arg(long, hide = true)]
     encoding: Option<String>,
 }

@@ -54,6 +54,9 @@ pub struct TrainArgs {
     /// Weight of the swing loss: the prior's one-step predictions must swing as far as real frames (0: off; docs/training.md).
     #[arg(long)]
     pub swing_weight: Option<f64>,
+    /// Let the gradient flow through the fed-back frames (about 3.6× slower; needs --feed-rounds 0; docs/training.md).
+    #[arg(long)]
+    pub rollout_gradient: bool,
     /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
     #[arg(long)]
     pub latent: Option<usize>,
@@ -188,6 +191,7 @@ impl TrainArgs {
             float_limit: self.float_limit,
             contact_speed: self.contact_speed,
             swing_weight: self.swing_weight,
+            rollout_gradient: self.rollout_gradient,
             inits: self.inits,
             feed_run: self.feed_run,
         }

@@ -136,6 +136,14 @@ pub struct Parts {
     /// make (false: at 1, the prior as trained; `--rollouts-at-temperature`).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub rollouts_at_temperature: bool,
+    /// The gradient flows through the fed-back frames: fed back to every
+    /// depth by the model's step loop in candle ops on its own weights
+    /// ([`Vrnn::fed_in_sequence`]) instead of the fused pass on detached
+    /// ones, so the losses after a fed frame reach what made it. About 3.6×
+    /// slower (no fused backward; `docs/training.md`, "The gradient
+    /// through the rollout"). Needs `feed_rounds` 0.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub rollout_gradient: bool,
     /// Generation in runs of at most this many new frames: after each, the
     /// recurrence restarts from a fresh state, reading the last frames made
     /// as its context, so it never runs far longer than the windows it was
@@ -484,6 +492,7 @@ impl Config {
             float_limit: None,
             contact_speed: None,
             swing: None,
+            rollout_gradient: false,
             ..p.clone()
         };
         MODELS
@@ -736,6 +745,11 @@ impl Vrnn {
         positive("float limit", c.parts.float_limit)?;
         positive("contact speed", c.parts.contact_speed)?;
         positive("swing weight", c.parts.swing)?;
+        if c.parts.rollout_gradient && c.parts.rounds() != 0 {
+            candle_core::bail!(
+                "the gradient through the rollout needs feeding back to every depth (--feed-rounds 0, the default preset's)"
+            );
+        }
         let gaussian = |input: usize, vb: VarBuilder| -> Result<[Lin; 2]> {
             Ok([
                 Lin::new(input, c.latent, vb.pp("mean"))?,
@@ -1301,6 +1315,19 @@ impl MotionModel for Vrnn {
             .transpose()?;
         let bias = bias.as_ref();
         let fed = match feed {
+            Some(mask) if self.config.parts.rollout_gradient => {
+                let e = self.prior_noise(&eps)?;
+                let i = Feed {
+                    x,
+                    feat: &feat,
+                    eps: &eps,
+                    e: &e,
+                    mask,
+                    lengths: lengths.as_ref(),
+                    bias,
+                };
+                Some(self.fed_in_sequence(&i)?)
+            }
             Some(mask) => {
                 let b = bias.map(Bias::detached);
                 let feat = feat.detach();

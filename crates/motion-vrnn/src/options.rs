@@ -179,6 +179,9 @@ pub struct Overrides {
     pub contact_speed: Option<f64>,
     /// Weight of the swing loss ([`crate::model::Parts::swing`]; 0: off).
     pub swing_weight: Option<f64>,
+    /// The gradient through the fed-back frames
+    /// ([`crate::model::Parts::rollout_gradient`]; `true`: on).
+    pub rollout_gradient: bool,
     /// Initialisations tried, each for [`crate::train::INIT_EPOCHS`]
     /// epochs, the best on validation kept ([`crate::train::Inits`]; 1: the
     /// seed's alone).
@@ -223,6 +226,9 @@ impl Overrides {
         }
         if let Some(v) = self.swing_weight {
             parts.swing = (v != 0.0).then_some(v);
+        }
+        if self.rollout_gradient {
+            parts.rollout_gradient = true;
         }
         if let Some(v) = self.latent {
             cfg.model.latent = v;

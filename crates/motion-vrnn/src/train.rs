@@ -226,6 +226,12 @@ impl TrainConfig {
         if let Some(n) = self.feed_run {
             s += &format!(", fed back in runs of {n} frames");
         }
+        if self.model.parts.rollout_gradient {
+            s += ", the gradient through the fed-back frames";
+        }
+        if let Some(w) = self.model.parts.swing {
+            s += &format!(", the swing loss weighed {w}");
+        }
         if let Some(l) = self.model.parts.float_limit {
             s += &format!(", generated figures at most {l} units off the floor");
         }

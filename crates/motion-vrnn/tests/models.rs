@@ -314,13 +314,40 @@ fn one_pass_in_time_order_is_every_round() {
     // The fused pass against its reference, the model's step loop in
     // candle ops (as every block runs off the CPU).
     let slow = blocks::reference(|| losses(&with(0)));
-    eprintln!("DEBUG {all:?} {five:?} {slow:?}");
     for k in 0..3 {
         let d = |a: f64, b: f64| ((a - b) / a).abs();
         assert!(d(all[k], five[k]) < 1e-5, "{all:?} vs {five:?}");
         assert!(d(all[k], slow[k]) < 1e-5, "{all:?} vs {slow:?}");
         assert!(d(all[k], two[k]) > 1e-4, "{all:?} vs {two:?}");
     }
+}
+
+/// The gradient through the rollout (`rollout_gradient`) leaves the losses
+/// as they are (the same frames fed back, by the fused pass's reference)
+/// and changes the gradients, which now also reach the weights through
+/// the fed frames; it needs feeding back to every depth.
+#[test]
+fn the_gradient_through_the_rollout_changes_the_gradients_only() {
+    let mut c = model("motion", 5).model.config().clone();
+    c.parts.feed_rounds = Some(0);
+    let with = |on: bool| {
+        let mut c = c.clone();
+        c.parts.rollout_gradient = on;
+        let m = init_model(&c, 5, &Device::Cpu).unwrap();
+        for (_, v) in named_vars(&m.varmap) {
+            v.set(&(v.as_tensor() * 3.0).unwrap()).unwrap();
+        }
+        m
+    };
+    let (x, eps) = batch(3, 8, 21);
+    let ((ra, ka), ga) = grads(&with(false), &x, &eps, 1.0);
+    let ((rb, kb), gb) = grads(&with(true), &x, &eps, 1.0);
+    let d = |a: f32, b: f32| ((a - b) / a).abs();
+    assert!(d(ra, rb) < 1e-5 && d(ka, kb) < 1e-5, "{ra} {rb} {ka} {kb}");
+    assert!(rel(&ga.concat(), &gb.concat()) > 1e-3);
+    c.parts.rollout_gradient = true;
+    c.parts.feed_rounds = None;
+    assert!(init_model(&c, 5, &Device::Cpu).is_err());
 }
 
 /// The temperature scales the prior's noise after the real start frames and
