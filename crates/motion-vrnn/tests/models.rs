@@ -613,16 +613,20 @@ fn fed_runs_come_in_blocks() {
 /// 3 threads (shards are summed in order).
 #[test]
 fn results_do_not_depend_on_the_thread_count() {
-    for name in ["paper", "motion", "every depth"] {
+    for name in ["paper", "motion", "every depth", "through the rollout"] {
         let m = match name {
-            "every depth" => {
+            "every depth" | "through the rollout" => {
                 let mut c = model("motion", 6).model.config().clone();
                 c.parts.feed_rounds = Some(0);
+                if name == "through the rollout" {
+                    c.parts.rollout_gradient = true;
+                    c.parts.swing = Some(1.0);
+                }
                 init_model(&c, 6, &Device::Cpu).unwrap()
             }
             _ => model(name, 6),
         };
-        let (x, eps) = batch(70, 10, 13);
+        let (x, eps) = batch(70, 16, 13);
         let run = |threads: usize| {
             rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
