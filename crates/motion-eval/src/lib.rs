@@ -62,15 +62,16 @@ pub enum EvalError {
     /// Loading or training a model failed.
     #[error(transparent)]
     Train(#[from] motion_vrnn::train::TrainError),
-    /// A tensor operation failed.
+    /// A tensor operation failed (its message in this one's, not also a
+    /// source, so an error chain says it once).
     #[error("tensor error: {0}")]
-    Candle(#[from] candle_core::Error),
+    Candle(candle_core::Error),
     /// Writing or drawing an output failed.
     #[error(transparent)]
     Render(#[from] motion_render::RenderError),
-    /// A report could not be (de)serialised.
+    /// A report could not be (de)serialised (its message in this one's).
     #[error("report JSON: {0}")]
-    Json(#[from] serde_json::Error),
+    Json(serde_json::Error),
     /// Creating a directory or copying a file failed.
     #[error("{}: {source}", path.display())]
     Io {
@@ -90,6 +91,18 @@ pub enum EvalError {
         /// The cause.
         source: Box<EvalError>,
     },
+}
+
+impl From<candle_core::Error> for EvalError {
+    fn from(e: candle_core::Error) -> Self {
+        EvalError::Candle(e)
+    }
+}
+
+impl From<serde_json::Error> for EvalError {
+    fn from(e: serde_json::Error) -> Self {
+        EvalError::Json(e)
+    }
 }
 
 impl EvalError {
