@@ -21,12 +21,12 @@ pub enum FetchError {
         message: String,
     },
     /// The cache could not be written.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {cause}", path.display())]
     Cache {
         /// The file or directory.
         path: PathBuf,
         /// The cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
 }
 
@@ -57,7 +57,7 @@ pub fn cached(url: &str, cache: &Path, progress: Progress) -> Result<PathBuf, Fe
     }
     let io = |path: &Path| {
         let path = path.to_path_buf();
-        move |source| FetchError::Cache { path, source }
+        move |cause| FetchError::Cache { path, cause }
     };
     std::fs::create_dir_all(cache).map_err(io(cache))?;
     let part = path.with_extension("part");

@@ -15,12 +15,12 @@ pub enum SourceError {
     #[error("{0}: no such file or directory")]
     NotFound(PathBuf),
     /// An I/O failure.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// The path.
         path: PathBuf,
         /// The cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The archive cannot be read as a zip file.
     #[error("{path}: not a readable zip archive: {message}")]
@@ -162,7 +162,7 @@ impl Source {
             std::io::ErrorKind::NotFound => SourceError::NotFound(path.to_path_buf()),
             _ => SourceError::Io {
                 path: path.to_path_buf(),
-                source: e,
+                cause: e,
             },
         })?;
         let is_zip = if meta.is_dir() {
@@ -408,7 +408,7 @@ impl Source {
     fn open_zip(&self) -> Result<zip::ZipArchive<File>, SourceError> {
         let f = File::open(&self.root).map_err(|e| SourceError::Io {
             path: self.root.clone(),
-            source: e,
+            cause: e,
         })?;
         zip::ZipArchive::new(f).map_err(|e| SourceError::Zip {
             path: self.root.clone(),
@@ -425,14 +425,14 @@ fn parent_dir(name: &str) -> &str {
 fn walk(root: &Path, dir: &Path, out: &mut Vec<Entry>) -> Result<(), SourceError> {
     let io = |e| SourceError::Io {
         path: dir.to_path_buf(),
-        source: e,
+        cause: e,
     };
     for item in std::fs::read_dir(dir).map_err(io)? {
         let item = item.map_err(io)?;
         let path = item.path();
         let meta = std::fs::metadata(&path).map_err(|e| SourceError::Io {
             path: path.clone(),
-            source: e,
+            cause: e,
         })?;
         if meta.is_dir() {
             walk(root, &path, out)?;

@@ -105,7 +105,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                         data.insert(motion_vrnn::data::load(&o.data, &["train", "val"]).map_err(
                             |source| EvalError::Data {
                                 dir: o.data.clone(),
-                                source,
+                                cause: source,
                             },
                         )?)
                     }
@@ -157,8 +157,12 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                 };
                 write_samples(&spec, &sheet, &samples)?;
                 let png = images.join(format!("{name}.png"));
-                std::fs::copy(samples.join("contact_sheet.png"), &png)
-                    .map_err(|source| EvalError::Io { path: png, source })?;
+                std::fs::copy(samples.join("contact_sheet.png"), &png).map_err(|source| {
+                    EvalError::Io {
+                        path: png,
+                        cause: source,
+                    }
+                })?;
             }
             runs.push(SeedRun {
                 seed,

@@ -44,12 +44,12 @@ pub enum EvalError {
         run: PathBuf,
     },
     /// The dataset could not be loaded.
-    #[error("loading the dataset {} (pass --data DIR): {source}", dir.display())]
+    #[error("loading the dataset {} (pass --data DIR): {cause}", dir.display())]
     Data {
         /// The dataset directory.
         dir: PathBuf,
         /// The cause.
-        source: motion_vrnn::data::DataError,
+        cause: motion_vrnn::data::DataError,
     },
     /// The dataset has no windows in a split that is needed.
     #[error("{}: no {split} windows", dir.display())]
@@ -73,23 +73,23 @@ pub enum EvalError {
     #[error("report JSON: {0}")]
     Json(serde_json::Error),
     /// Creating a directory or copying a file failed.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {cause}", path.display())]
     Io {
         /// The file or directory.
         path: PathBuf,
         /// The cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// Options that cannot work.
     #[error("{0}")]
     Invalid(String),
     /// A failure inside one step of a longer job, with the step named.
-    #[error("{what}: {source}")]
+    #[error("{what}: {cause}")]
     In {
         /// The step (e.g. "training motion seed 1").
         what: String,
         /// The cause.
-        source: Box<EvalError>,
+        cause: Box<EvalError>,
     },
 }
 
@@ -110,7 +110,7 @@ impl EvalError {
     pub fn within(self, what: impl Into<String>) -> EvalError {
         EvalError::In {
             what: what.into(),
-            source: Box::new(self),
+            cause: Box::new(self),
         }
     }
 }
@@ -119,7 +119,7 @@ impl EvalError {
 pub(crate) fn create_dir(path: &std::path::Path) -> Result<(), EvalError> {
     std::fs::create_dir_all(path).map_err(|source| EvalError::Io {
         path: path.to_path_buf(),
-        source,
+        cause: source,
     })
 }
 
@@ -134,4 +134,35 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
     let m = mean_of(v);
     let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
     (m, var.sqrt())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An error says its cause once: in its own message, with no source
+    /// behind it for an error chain (`anyhow`'s "Caused by") to repeat.
+    #[test]
+    fn an_error_says_its_cause_once() {
+        let io = || std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let errors = [
+            EvalError::Io {
+                path: "out/x.png".into(),
+                cause: io(),
+            },
+            EvalError::Candle(candle_core::Error::Msg("bad shape".into())),
+            EvalError::Render(motion_render::RenderError::Io {
+                path: "a.bvh".into(),
+                cause: io(),
+            })
+            .within("writing seed 1"),
+        ];
+        let texts = errors.map(|e| {
+            assert!(std::error::Error::source(&e).is_none(), "{e}");
+            e.to_string()
+        });
+        assert_eq!(texts[0], "out/x.png: no such file");
+        assert_eq!(texts[1], "tensor error: bad shape");
+        assert_eq!(texts[2], "writing seed 1: a.bvh: no such file");
+    }
 }

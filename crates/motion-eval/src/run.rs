@@ -178,7 +178,7 @@ impl Run {
             .unwrap_or_else(|| PathBuf::from(&meta.dataset));
         let data = motion_vrnn::data::load(&dir, splits).map_err(|source| EvalError::Data {
             dir: dir.clone(),
-            source,
+            cause: source,
         })?;
         let mut warnings = Vec::new();
         if data.manifest_sha256 != meta.dataset_manifest_sha256 {

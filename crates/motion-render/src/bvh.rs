@@ -146,7 +146,7 @@ pub fn write_all(dir: &Path, motions: &[Motion]) -> Result<Vec<RoundTrip>, Rende
 pub fn read_motion(path: &Path, id: &str) -> Result<Motion, RenderError> {
     let bytes = std::fs::read(path).map_err(|source| RenderError::Io {
         path: path.to_path_buf(),
-        source,
+        cause: source,
     })?;
     let m = mocap_ingest::read_bvh(&path.display().to_string(), &bytes).map_err(|e| {
         RenderError::Format {

@@ -113,7 +113,7 @@ pub fn read_parquet(path: &Path) -> Result<Vec<Motion>, RenderError> {
     let pe = |e: PolarsError| fail(e.to_string());
     let file = std::fs::File::open(path).map_err(|source| RenderError::Io {
         path: path.to_path_buf(),
-        source,
+        cause: source,
     })?;
     let df = ParquetReader::new(file).finish().map_err(pe)?;
     let col = |name: &str| {

@@ -43,12 +43,12 @@ pub struct Motion {
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
     /// Reading or writing a file failed.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {cause}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
         /// The cause.
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// A motions file is not in the documented format.
     #[error("{}: {message}", path.display())]
@@ -87,7 +87,7 @@ pub fn write_atomically(
     let tmp = path.with_file_name(name);
     let io = |p: &Path| {
         let path = p.to_path_buf();
-        move |source| RenderError::Io { path, source }
+        move |cause| RenderError::Io { path, cause }
     };
     let file = std::fs::File::create(&tmp).map_err(io(&tmp))?;
     let mut w = std::io::BufWriter::new(file);
@@ -102,7 +102,7 @@ pub fn write_file(path: &Path, bytes: &[u8]) -> Result<(), RenderError> {
     write_atomically(path, |w| {
         w.write_all(bytes).map_err(|source| RenderError::Io {
             path: path.to_path_buf(),
-            source,
+            cause: source,
         })
     })
 }

@@ -185,7 +185,7 @@ pub fn screenshot(
 ) -> Result<(), RenderError> {
     let abs = std::fs::canonicalize(html).map_err(|source| RenderError::Io {
         path: html.to_path_buf(),
-        source,
+        cause: source,
     })?;
     let url = format!("file://{}{query}", abs.display());
     let fail = |message: String| RenderError::Image {
@@ -231,7 +231,7 @@ pub fn screenshots_of(
 ) -> Result<Vec<(&'static str, String)>, RenderError> {
     let text = std::fs::read_to_string(html).map_err(|source| RenderError::Io {
         path: html.to_path_buf(),
-        source,
+        cause: source,
     })?;
     // The sets in the file, in order.
     let names: Vec<&str> = text
