@@ -377,7 +377,7 @@ pub(crate) fn as_windows(
 }
 
 /// A real-vs-real range as printed beside a ratio: `[lo–hi]`, or nothing
-/// for reports written before it.
+/// where there is none (the stride's, in reports written before it).
 fn bracket(r: Option<(f64, f64)>) -> String {
     r.map_or(String::new(), |(lo, hi)| format!("[{lo:.2}–{hi:.2}]"))
 }
@@ -408,7 +408,7 @@ pub fn markdown(a: &AskedSet) -> String {
             (true, m) => m.join(", "),
         };
         s += &format!(
-            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) [{:.2}–{:.2}] | {:.2} → **{:.2}** ({:.2}) {} | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
+            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
             c.category,
             c.train_windows,
             c.split_windows,
@@ -418,13 +418,11 @@ pub fn markdown(a: &AskedSet) -> String {
             c.real.speed_m_s,
             c.generated.speed_m_s,
             c.unasked.speed_m_s,
-            c.real_spread[0].0,
-            c.real_spread[0].1,
+            bracket(Some(c.real_spread[0])),
             c.real.contact,
             c.generated.contact,
             c.unasked.contact,
-            c.real_spread[1].0,
-            c.real_spread[1].1,
+            bracket(Some(c.real_spread[1])),
             c.real.stride_m,
             c.generated.stride_m,
             c.unasked.stride_m,
@@ -537,7 +535,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
                 (c.in_goals() && !m.is_empty()).then(|| format!("{seed} ({})", m.join(", ")))
             })
             .collect();
-        let spread = |i: usize| format!("[{:.2}–{:.2}]", c.real_spread[i].0, c.real_spread[i].1);
+        let spread = |i: usize| bracket(Some(c.real_spread[i]));
         s += &format!(
             "| {} | {} / {} | {} | {} | {} | {} {} | {} {} | {} | {} | {} |\n",
             c.category,

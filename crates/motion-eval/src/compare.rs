@@ -103,9 +103,9 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                     Some(ref d) => d,
                     None => {
                         data.insert(motion_vrnn::data::load(&o.data, &["train", "val"]).map_err(
-                            |source| EvalError::Data {
+                            |cause| EvalError::Data {
                                 dir: o.data.clone(),
-                                cause: source,
+                                cause,
                             },
                         )?)
                     }
@@ -157,12 +157,8 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                 };
                 write_samples(&spec, &sheet, &samples)?;
                 let png = images.join(format!("{name}.png"));
-                std::fs::copy(samples.join("contact_sheet.png"), &png).map_err(|source| {
-                    EvalError::Io {
-                        path: png,
-                        cause: source,
-                    }
-                })?;
+                std::fs::copy(samples.join("contact_sheet.png"), &png)
+                    .map_err(|cause| EvalError::Io { path: png, cause })?;
             }
             runs.push(SeedRun {
                 seed,

@@ -117,9 +117,9 @@ impl EvalError {
 
 /// `std::fs::create_dir_all` with the directory named in the error.
 pub(crate) fn create_dir(path: &std::path::Path) -> Result<(), EvalError> {
-    std::fs::create_dir_all(path).map_err(|source| EvalError::Io {
+    std::fs::create_dir_all(path).map_err(|cause| EvalError::Io {
         path: path.to_path_buf(),
-        cause: source,
+        cause,
     })
 }
 

@@ -176,9 +176,9 @@ impl Run {
             .data
             .clone()
             .unwrap_or_else(|| PathBuf::from(&meta.dataset));
-        let data = motion_vrnn::data::load(&dir, splits).map_err(|source| EvalError::Data {
+        let data = motion_vrnn::data::load(&dir, splits).map_err(|cause| EvalError::Data {
             dir: dir.clone(),
-            cause: source,
+            cause,
         })?;
         let mut warnings = Vec::new();
         if data.manifest_sha256 != meta.dataset_manifest_sha256 {

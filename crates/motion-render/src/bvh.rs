@@ -144,9 +144,9 @@ pub fn write_all(dir: &Path, motions: &[Motion]) -> Result<Vec<RoundTrip>, Rende
 /// Read a BVH file back with `mocap_ingest` (every frame, no resampling) as
 /// a motion named `id`.
 pub fn read_motion(path: &Path, id: &str) -> Result<Motion, RenderError> {
-    let bytes = std::fs::read(path).map_err(|source| RenderError::Io {
+    let bytes = std::fs::read(path).map_err(|cause| RenderError::Io {
         path: path.to_path_buf(),
-        cause: source,
+        cause,
     })?;
     let m = mocap_ingest::read_bvh(&path.display().to_string(), &bytes).map_err(|e| {
         RenderError::Format {

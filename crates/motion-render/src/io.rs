@@ -111,9 +111,9 @@ pub fn read_parquet(path: &Path) -> Result<Vec<Motion>, RenderError> {
         message,
     };
     let pe = |e: PolarsError| fail(e.to_string());
-    let file = std::fs::File::open(path).map_err(|source| RenderError::Io {
+    let file = std::fs::File::open(path).map_err(|cause| RenderError::Io {
         path: path.to_path_buf(),
-        cause: source,
+        cause,
     })?;
     let df = ParquetReader::new(file).finish().map_err(pe)?;
     let col = |name: &str| {

@@ -100,9 +100,9 @@ pub fn write_atomically(
 /// Write `bytes` to `path` atomically.
 pub fn write_file(path: &Path, bytes: &[u8]) -> Result<(), RenderError> {
     write_atomically(path, |w| {
-        w.write_all(bytes).map_err(|source| RenderError::Io {
+        w.write_all(bytes).map_err(|cause| RenderError::Io {
             path: path.to_path_buf(),
-            cause: source,
+            cause,
         })
     })
 }

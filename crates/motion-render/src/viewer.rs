@@ -183,9 +183,9 @@ pub fn screenshot(
     png: &Path,
     (width, height): (u32, u32),
 ) -> Result<(), RenderError> {
-    let abs = std::fs::canonicalize(html).map_err(|source| RenderError::Io {
+    let abs = std::fs::canonicalize(html).map_err(|cause| RenderError::Io {
         path: html.to_path_buf(),
-        cause: source,
+        cause,
     })?;
     let url = format!("file://{}{query}", abs.display());
     let fail = |message: String| RenderError::Image {
@@ -229,9 +229,9 @@ pub fn screenshots_of(
     html: &Path,
     frame: usize,
 ) -> Result<Vec<(&'static str, String)>, RenderError> {
-    let text = std::fs::read_to_string(html).map_err(|source| RenderError::Io {
+    let text = std::fs::read_to_string(html).map_err(|cause| RenderError::Io {
         path: html.to_path_buf(),
-        cause: source,
+        cause,
     })?;
     // The sets in the file, in order.
     let names: Vec<&str> = text
