@@ -286,11 +286,9 @@ fn median(v: &[f64]) -> f64 {
     }
 }
 
-impl SpeedUp {
-    /// Rounds in which `ratios` reach `goal`.
-    fn met(ratios: &[f64], goal: f64) -> usize {
-        ratios.iter().filter(|&&r| r >= goal).count()
-    }
+/// Rounds in which `ratios` reach `goal`.
+fn rounds_met(ratios: &[f64], goal: f64) -> usize {
+    ratios.iter().filter(|&&r| r >= goal).count()
 }
 
 /// Every model and batch size of the first round, with its speed-ups in
@@ -389,8 +387,10 @@ pub fn report(b: &Bench, device: &Device, out: &mut dyn FnMut(&str)) -> Result<(
         let hoisted = pytorch_medians(python, script, b.batches, steps, threads, true)?;
         out("");
         out("PyTorch eager, paper model (xtask/py/pytorch_vrnn_step.py), median s per step:");
-        for ((b, s), (_, h)) in stepwise.iter().zip(&hoisted) {
-            out(&format!("  batch {b:>5}: stepwise {s:.4}, hoisted {h:.4}"));
+        for ((batch, s), (_, h)) in stepwise.iter().zip(&hoisted) {
+            out(&format!(
+                "  batch {batch:>5}: stepwise {s:.4}, hoisted {h:.4}"
+            ));
         }
         out("");
         done.push(Round {
@@ -412,41 +412,31 @@ pub fn report(b: &Bench, device: &Device, out: &mut dyn FnMut(&str)) -> Result<(
 /// and in how many rounds the goal was met.
 fn against_pytorch(rows: &[SpeedUp], out: &mut dyn FnMut(&str)) {
     let rounds = rows.first().map_or(0, |r| r.stepwise.len());
+    // Several rounds: each ratio's column also holds its range.
+    let (suffix, ws, wh) = match rounds > 1 {
+        true => (" [range]", 25, 24),
+        false => ("", 11, 10),
+    };
     if rounds > 1 {
         out(&format!(
             "over {rounds} rounds: the median of the rounds' speed-ups [lowest–highest], each round's models against that round's PyTorch; met: in how many rounds"
         ));
-        out(&format!(
-            "{:>9} {:>6} {:>10} {:>25} {:>24} {:>6} {:>11} {:>10}",
-            "model",
-            "batch",
-            "median s",
-            "÷ stepwise [range]",
-            "÷ hoisted [range]",
-            "goal",
-            "met (step)",
-            "met (hoist)"
-        ));
-    } else {
-        out(&format!(
-            "{:>9} {:>6} {:>10} {:>11} {:>10} {:>6} {:>11} {:>10}",
-            "model",
-            "batch",
-            "median s",
-            "÷ stepwise",
-            "÷ hoisted",
-            "goal",
-            "met (step)",
-            "met (hoist)"
-        ));
     }
+    out(&format!(
+        "{:>9} {:>6} {:>10} {:>ws$} {:>wh$} {:>6} {:>11} {:>10}",
+        "model",
+        "batch",
+        "median s",
+        format!("÷ stepwise{suffix}"),
+        format!("÷ hoisted{suffix}"),
+        "goal",
+        "met (step)",
+        "met (hoist)"
+    ));
     for r in rows {
         let goal = speedup_goal(r.batch);
         let (step, hoist) = (median(&r.stepwise), median(&r.hoisted));
-        let (ms, mh) = (
-            SpeedUp::met(&r.stepwise, goal),
-            SpeedUp::met(&r.hoisted, goal),
-        );
+        let (ms, mh) = (rounds_met(&r.stepwise, goal), rounds_met(&r.hoisted, goal));
         if rounds > 1 {
             let range = |v: &[f64]| {
                 let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
@@ -510,7 +500,7 @@ mod tests {
         assert_eq!(u[0].seconds, 0.025);
         assert_eq!(u[0].stepwise, vec![0.10 / 0.02, 0.18 / 0.03, 0.10 / 0.025]);
         assert_eq!(median(&u[0].stepwise), 5.0);
-        assert_eq!(SpeedUp::met(&u[0].stepwise, speedup_goal(64)), 2);
+        assert_eq!(rounds_met(&u[0].stepwise, speedup_goal(64)), 2);
         assert_eq!(u[0].hoisted, vec![2.5, 2.0, 2.0]);
         assert!(speedups(&[]).is_empty());
     }

@@ -1097,8 +1097,9 @@ impl Vrnn {
     /// the same noise; the whole decoder). The state comes from the real
     /// frames in the first round, and from the previous round's frames in
     /// each later one ([`Parts::feed_rounds`]; with 0, to every depth in one
-    /// pass: [`Vrnn::fed_in_sequence`]). No gradient flows through the
-    /// replacement.
+    /// pass: [`Vrnn::fed_in_sequence`]). Training calls it on detached
+    /// weights, so no gradient flows through the replacement, but with
+    /// [`Parts::rollout_gradient`] on its own.
     fn fed_back(
         &self,
         x: &Tensor,
@@ -1121,7 +1122,9 @@ impl Vrnn {
                 lengths,
                 bias,
             };
-            return match blocks::fused(x) {
+            // The fused pass has no backward: a gradient through the
+            // rollout ([`Parts::rollout_gradient`]) takes the step loop.
+            return match blocks::fused(x) && !self.config.parts.rollout_gradient {
                 true => self.fed_fused(&i),
                 false => self.fed_in_sequence(&i),
             };
@@ -1316,17 +1319,7 @@ impl MotionModel for Vrnn {
         let bias = bias.as_ref();
         let fed = match feed {
             Some(mask) if self.config.parts.rollout_gradient => {
-                let e = self.prior_noise(&eps)?;
-                let i = Feed {
-                    x,
-                    feat: &feat,
-                    eps: &eps,
-                    e: &e,
-                    mask,
-                    lengths: lengths.as_ref(),
-                    bias,
-                };
-                Some(self.fed_in_sequence(&i)?)
+                Some(self.fed_back(x, &feat, &eps, mask, lengths.as_ref(), bias)?)
             }
             Some(mask) => {
                 let b = bias.map(Bias::detached);
