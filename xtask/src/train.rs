@@ -57,6 +57,9 @@ pub struct TrainArgs {
     /// Let the gradient flow through the fed-back frames (about 3.6× slower; needs --feed-rounds 0; docs/training.md).
     #[arg(long)]
     pub rollout_gradient: bool,
+    /// After feeding back, one more round with the gradient: the rollout's gradient one level deep (docs/training.md).
+    #[arg(long, conflicts_with = "rollout_gradient")]
+    pub last_round_gradient: bool,
     /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
     #[arg(long)]
     pub latent: Option<usize>,
@@ -192,6 +195,7 @@ impl TrainArgs {
             contact_speed: self.contact_speed,
             swing_weight: self.swing_weight,
             rollout_gradient: self.rollout_gradient,
+            last_round_gradient: self.last_round_gradient,
             inits: self.inits,
             feed_run: self.feed_run,
         }

@@ -144,6 +144,15 @@ pub struct Parts {
     /// through the rollout"). Needs `feed_rounds` 0.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub rollout_gradient: bool,
+    /// After feeding back without a gradient, one more round of feeding
+    /// back on the model's own weights, its recurrence reading the frames
+    /// fed back, so the losses reach, through each fed frame, the prior,
+    /// decoder, skeleton and lock that made it from the state before it and
+    /// the recurrence that led to that state: the gradient through the
+    /// rollout one level deep, at the cost of one more teacher-forced pass
+    /// (`docs/training.md`, "One level deep"). Not with `rollout_gradient`.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub last_round_gradient: bool,
     /// Generation in runs of at most this many new frames: after each, the
     /// recurrence restarts from a fresh state, reading the last frames made
     /// as its context, so it never runs far longer than the windows it was
@@ -493,6 +502,7 @@ impl Config {
             contact_speed: None,
             swing: None,
             rollout_gradient: false,
+            last_round_gradient: false,
             ..p.clone()
         };
         MODELS
@@ -745,6 +755,11 @@ impl Vrnn {
         positive("float limit", c.parts.float_limit)?;
         positive("contact speed", c.parts.contact_speed)?;
         positive("swing weight", c.parts.swing)?;
+        if c.parts.rollout_gradient && c.parts.last_round_gradient {
+            candle_core::bail!(
+                "the gradient through the rollout and through its last round are two ways of the same; choose one"
+            );
+        }
         if c.parts.rollout_gradient && c.parts.rounds() != 0 {
             candle_core::bail!(
                 "the gradient through the rollout needs feeding back to every depth (--feed-rounds 0, the default preset's)"
@@ -1112,16 +1127,16 @@ impl Vrnn {
         // The prior's draws at the sampling temperature where asked; the
         // posterior's noise as is.
         let e = self.prior_noise(eps)?;
+        let i = Feed {
+            x,
+            feat,
+            eps,
+            e: &e,
+            mask,
+            lengths,
+            bias,
+        };
         if self.config.parts.rounds() == 0 {
-            let i = Feed {
-                x,
-                feat,
-                eps,
-                e: &e,
-                mask,
-                lengths,
-                bias,
-            };
             // The fused pass has no backward: a gradient through the
             // rollout ([`Parts::rollout_gradient`]) takes the step loop.
             return match blocks::fused(x) && !self.config.parts.rollout_gradient {
@@ -1129,20 +1144,23 @@ impl Vrnn {
                 false => self.fed_in_sequence(&i),
             };
         }
-        let prior = stacked(&self.prior[0], &self.prior[1])?;
-        let m = mask.unsqueeze(D::Minus1)?.broadcast_as(x.shape())?;
-        // One round: the recurrence reads `fed` (the real frames when None).
-        let round = |fed: Option<&Tensor>| -> Result<Tensor> {
-            let s = self.scan(feat, fed, eps, bias)?;
-            let p = plus(prior.forward(&s.h, Act::None)?, bias.map(|b| &b.prior))?;
-            let own = self.prior_decoded(&p, &s.h, &e, lengths, bias)?.detach();
-            x + ((own - x)? * &m)?
-        };
-        let mut fed = round(None)?;
+        let mut fed = self.feed_round(&i, None)?.detach();
         for _ in 1..self.config.parts.rounds() {
-            fed = round(Some(&fed))?;
+            fed = self.feed_round(&i, Some(&fed))?.detach();
         }
         Ok(fed)
+    }
+
+    /// One round of feeding back: the recurrence reads `fed` (the real
+    /// frames when None), and each masked frame is replaced by the frame
+    /// the prior's draw decodes to from the state before it.
+    fn feed_round(&self, i: &Feed, fed: Option<&Tensor>) -> Result<Tensor> {
+        let s = self.scan(i.feat, fed, i.eps, i.bias)?;
+        let prior = stacked(&self.prior[0], &self.prior[1])?;
+        let p = plus(prior.forward(&s.h, Act::None)?, i.bias.map(|b| &b.prior))?;
+        let own = self.prior_decoded(&p, &s.h, i.e, i.lengths, i.bias)?;
+        let m = i.mask.unsqueeze(D::Minus1)?.broadcast_as(i.x.shape())?;
+        i.x + ((own - i.x)? * &m)?
     }
 
     /// [`Vrnn::fed_back`] to every depth (`feed_rounds` 0): one pass in
@@ -1323,9 +1341,28 @@ impl MotionModel for Vrnn {
             }
             Some(mask) => {
                 let b = bias.map(Bias::detached);
-                let feat = feat.detach();
+                let detached = feat.detach();
                 let own = self.detached();
-                Some(own.fed_back(x, &feat, &eps, mask, lengths.as_ref(), b.as_ref())?)
+                let fed = own.fed_back(x, &detached, &eps, mask, lengths.as_ref(), b.as_ref())?;
+                match self.config.parts.last_round_gradient {
+                    // One more round on the model's own weights, reading
+                    // the frames fed back: the gradient reaches what made
+                    // each fed frame from the state before it.
+                    true => {
+                        let e = self.prior_noise(&eps)?;
+                        let i = Feed {
+                            x,
+                            feat: &feat,
+                            eps: &eps,
+                            e: &e,
+                            mask,
+                            lengths: lengths.as_ref(),
+                            bias,
+                        };
+                        Some(self.feed_round(&i, Some(&fed))?)
+                    }
+                    false => Some(fed),
+                }
             }
             None => None,
         };

@@ -182,6 +182,9 @@ pub struct Overrides {
     /// The gradient through the fed-back frames
     /// ([`crate::model::Parts::rollout_gradient`]; `true`: on).
     pub rollout_gradient: bool,
+    /// The gradient through the last round of feeding back
+    /// ([`crate::model::Parts::last_round_gradient`]; `true`: on).
+    pub last_round_gradient: bool,
     /// Initialisations tried, each for [`crate::train::INIT_EPOCHS`]
     /// epochs, the best on validation kept ([`crate::train::Inits`]; 1: the
     /// seed's alone).
@@ -229,6 +232,9 @@ impl Overrides {
         }
         if self.rollout_gradient {
             parts.rollout_gradient = true;
+        }
+        if self.last_round_gradient {
+            parts.last_round_gradient = true;
         }
         if let Some(v) = self.latent {
             cfg.model.latent = v;

@@ -229,6 +229,9 @@ impl TrainConfig {
         if self.model.parts.rollout_gradient {
             s += ", the gradient through the fed-back frames";
         }
+        if self.model.parts.last_round_gradient {
+            s += ", the gradient through a last round of feeding back";
+        }
         if let Some(w) = self.model.parts.swing {
             s += &format!(", the swing loss weighed {w}");
         }

@@ -322,17 +322,19 @@ fn one_pass_in_time_order_is_every_round() {
     }
 }
 
-/// The gradient through the rollout (`rollout_gradient`) leaves the losses
-/// as they are (the same frames fed back, by the fused pass's reference)
-/// and changes the gradients, which now also reach the weights through
-/// the fed frames; it needs feeding back to every depth.
+/// The gradient through the rollout (`rollout_gradient`), and through its
+/// last round (`last_round_gradient`), leave the losses as they are (the
+/// same frames fed back: by the fused pass's reference, or decoded again
+/// from the states that read them) and change the gradients, which now also
+/// reach the weights through the fed frames. The first needs feeding back
+/// to every depth; the two are not taken together.
 #[test]
 fn the_gradient_through_the_rollout_changes_the_gradients_only() {
     let mut c = model("motion", 5).model.config().clone();
     c.parts.feed_rounds = Some(0);
-    let with = |on: bool| {
+    let with = |set: &dyn Fn(&mut Config)| {
         let mut c = c.clone();
-        c.parts.rollout_gradient = on;
+        set(&mut c);
         let m = init_model(&c, 5, &Device::Cpu).unwrap();
         for (_, v) in named_vars(&m.varmap) {
             v.set(&(v.as_tensor() * 3.0).unwrap()).unwrap();
@@ -340,12 +342,20 @@ fn the_gradient_through_the_rollout_changes_the_gradients_only() {
         m
     };
     let (x, eps) = batch(3, 8, 21);
-    let ((ra, ka), ga) = grads(&with(false), &x, &eps, 1.0);
-    let ((rb, kb), gb) = grads(&with(true), &x, &eps, 1.0);
+    let ((ra, ka), ga) = grads(&with(&|_| ()), &x, &eps, 1.0);
     let d = |a: f32, b: f32| ((a - b) / a).abs();
-    assert!(d(ra, rb) < 1e-5 && d(ka, kb) < 1e-5, "{ra} {rb} {ka} {kb}");
-    assert!(rel(&ga.concat(), &gb.concat()) > 1e-3);
+    for set in [
+        &(|c: &mut Config| c.parts.rollout_gradient = true) as &dyn Fn(&mut Config),
+        &|c: &mut Config| c.parts.last_round_gradient = true,
+    ] {
+        let ((rb, kb), gb) = grads(&with(set), &x, &eps, 1.0);
+        assert!(d(ra, rb) < 1e-5 && d(ka, kb) < 1e-5, "{ra} {rb} {ka} {kb}");
+        assert!(rel(&ga.concat(), &gb.concat()) > 1e-3);
+    }
     c.parts.rollout_gradient = true;
+    c.parts.last_round_gradient = true;
+    assert!(init_model(&c, 5, &Device::Cpu).is_err());
+    c.parts.last_round_gradient = false;
     c.parts.feed_rounds = None;
     assert!(init_model(&c, 5, &Device::Cpu).is_err());
 }
@@ -613,15 +623,22 @@ fn fed_runs_come_in_blocks() {
 /// 3 threads (shards are summed in order).
 #[test]
 fn results_do_not_depend_on_the_thread_count() {
-    for name in ["paper", "motion", "every depth", "through the rollout"] {
+    for name in [
+        "paper",
+        "motion",
+        "every depth",
+        "through the rollout",
+        "through its last round",
+    ] {
         let m = match name {
-            "every depth" | "through the rollout" => {
+            "every depth" | "through the rollout" | "through its last round" => {
                 let mut c = model("motion", 6).model.config().clone();
                 c.parts.feed_rounds = Some(0);
                 if name == "through the rollout" {
                     c.parts.rollout_gradient = true;
                     c.parts.swing = Some(1.0);
                 }
+                c.parts.last_round_gradient = name == "through its last round";
                 init_model(&c, 6, &Device::Cpu).unwrap()
             }
             _ => model(name, 6),
