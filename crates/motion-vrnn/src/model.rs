@@ -137,11 +137,12 @@ pub struct Parts {
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub rollouts_at_temperature: bool,
     /// The gradient flows through the fed-back frames: fed back to every
-    /// depth by the model's step loop in candle ops on its own weights
-    /// ([`Vrnn::fed_in_sequence`]) instead of the fused pass on detached
-    /// ones, so the losses after a fed frame reach what made it. About 3.6×
-    /// slower (no fused backward; `docs/training.md`, "The gradient
-    /// through the rollout"). Needs `feed_rounds` 0.
+    /// depth on the model's own weights by the fused pass with its backward
+    /// ([`rollout::RolloutOp`]; the step loop [`Vrnn::fed_in_sequence`] off
+    /// the CPU) instead of the fused pass on detached ones, so the losses
+    /// after a fed frame reach what made it. A training step costs about
+    /// twice the default's (`docs/training.md`, "The gradient through the
+    /// rollout"). Needs `feed_rounds` 0.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub rollout_gradient: bool,
     /// After feeding back without a gradient, one more round of feeding
@@ -1137,11 +1138,12 @@ impl Vrnn {
             bias,
         };
         if self.config.parts.rounds() == 0 {
-            // The fused pass has no backward: a gradient through the
-            // rollout ([`Parts::rollout_gradient`]) takes the step loop.
-            return match blocks::fused(x) && !self.config.parts.rollout_gradient {
-                true => self.fed_fused(&i),
-                false => self.fed_in_sequence(&i),
+            // A gradient through the rollout ([`Parts::rollout_gradient`])
+            // takes the fused pass with its backward.
+            return match (blocks::fused(x), self.config.parts.rollout_gradient) {
+                (true, false) => self.fed_fused(&i),
+                (true, true) => self.fed_fused_grad(&i),
+                (false, _) => self.fed_in_sequence(&i),
             };
         }
         let mut fed = self.feed_round(&i, None)?.detach();
@@ -1222,9 +1224,9 @@ impl Vrnn {
         .squeeze(1)
     }
 
-    /// [`Vrnn::fed_in_sequence`] as one fused block ([`rollout::fed`]).
-    fn fed_fused(&self, i: &Feed) -> Result<Tensor> {
-        let (c, x, lengths) = (&self.config, i.x, i.lengths);
+    /// The model's weights as [`rollout::fed`] reads them.
+    fn rollout_net(&self, lengths: Option<&Tensor>) -> Result<rollout::Net> {
+        let c = &self.config;
         let v = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
         let dense = |l: &Lin| -> Result<rollout::Dense> {
             let (out, inp) = l.w.dims2()?;
@@ -1236,7 +1238,7 @@ impl Vrnn {
             })
         };
         let body = c.body.as_ref();
-        let net = rollout::Net {
+        Ok(rollout::Net {
             hidden: c.hidden,
             latent: c.latent,
             input: c.input,
@@ -1259,7 +1261,14 @@ impl Vrnn {
             place: body
                 .filter(|_| c.parts.skeleton && lengths.is_some())
                 .map(|b| (b.mean.clone(), b.std.clone())),
-        };
+        })
+    }
+
+    /// [`Vrnn::fed_in_sequence`] as one fused block ([`rollout::fed`]).
+    fn fed_fused(&self, i: &Feed) -> Result<Tensor> {
+        let (x, lengths) = (i.x, i.lengths);
+        let v = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
+        let net = self.rollout_net(lengths)?;
         let (b, t, f) = x.dims3()?;
         let (xv, fv, ev, pv, mv) = (v(x)?, v(i.feat)?, v(i.eps)?, v(i.e)?, v(i.mask)?);
         let lv = lengths.map(v).transpose()?;
@@ -1283,6 +1292,54 @@ impl Vrnn {
             }),
         };
         Tensor::from_vec(rollout::fed(&net, &shard), (b, t, f), x.device())
+    }
+
+    /// [`Vrnn::fed_fused`] with the gradient through the fed frames
+    /// ([`rollout::RolloutOp`]): of the real frames' features, every weight
+    /// and the condition's rows.
+    fn fed_fused_grad(&self, i: &Feed) -> Result<Tensor> {
+        let (b, t, _) = i.x.dims3()?;
+        let v = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
+        let flat = |l: &Lin| -> Result<[Tensor; 2]> { Ok([l.w.flatten_all()?, l.b.clone()]) };
+        let mut w = Vec::new();
+        for l in [
+            &self.phi_x[0],
+            &self.phi_x[1],
+            &stacked(&self.encoder[0], &self.encoder[1])?,
+            &stacked(&self.prior[0], &self.prior[1])?,
+            &self.decoder[0],
+            &self.decoder[1],
+            &self.decoder[2],
+        ] {
+            w.extend(flat(l)?);
+        }
+        w.extend([
+            self.w_ih.flatten_all()?,
+            self.w_hh.flatten_all()?,
+            (&self.b_ih + &self.b_hh)?,
+        ]);
+        let w = Tensor::cat(&w, 0)?;
+        let (cond, widths) = match i.bias {
+            Some(bias) => {
+                let parts = [&bias.pre, &bias.prior, &bias.decoder];
+                let widths = parts.map(|p| p.dim(D::Minus1).unwrap_or(0));
+                (Tensor::cat(&parts, D::Minus1)?, Some(widths))
+            }
+            None => (Tensor::zeros(1, DType::F32, i.x.device())?, None),
+        };
+        let op = rollout::RolloutOp {
+            net: self.rollout_net(i.lengths)?,
+            b,
+            t,
+            x: v(i.x)?,
+            eps: v(i.eps)?,
+            e: v(i.e)?,
+            mask: v(i.mask)?,
+            lengths: i.lengths.map(v).transpose()?,
+            cond: widths,
+            tape: std::sync::Mutex::new(None),
+        };
+        i.feat.contiguous()?.apply_op3(&w, &cond.contiguous()?, op)
     }
 
     /// `x − o` over the pose features of a real frame `x: [B, input]` and

@@ -1004,3 +1004,73 @@ fn the_pace_is_four_means_read_where_a_category_is_asked() {
     assert_eq!(sample(&m, Some(&walk)), sample(&plain, Some(&walk)));
     assert_eq!(loss(&m, Some(&walk)), loss(&plain, Some(&walk)));
 }
+
+/// The gradient through the rollout runs as one fused block with its own
+/// backward (`blocks::rollout::RolloutOp`): the losses and every gradient
+/// equal candle's autograd through the step loop it replaces
+/// (`Vrnn::fed_in_sequence`), with and without a condition, the skeleton,
+/// the filters and the foot lock on; so does the part of each gradient that
+/// flows through the fed frames alone (the gradient less the one without
+/// them), which is small beside the rest.
+#[test]
+fn the_fused_gradient_through_the_rollout_matches_autograd() {
+    for on in [false, true] {
+        let build = |through: bool| {
+            let mut c = conditioned("motion", on).model.config().clone();
+            c.parts.feed_rounds = Some(0);
+            c.parts.rollout_gradient = through;
+            let m = init_model(&c, 4, &Device::Cpu).unwrap();
+            if on {
+                randomise(&m);
+            }
+            m
+        };
+        let (with, without) = (build(true), build(false));
+        let (x, eps) = batch(5, 9, 12);
+        let fed = feed_mask(9, 1, 5, 9, 0.5, 1, &Device::Cpu).unwrap();
+        let cond = on.then(|| ask(&with, &[Some(1), Some(2), None, Some(3), Some(1)], 1.0));
+        fused_matches_reference("rollout", &with, &x, &eps, fed.as_ref(), cond.as_ref());
+        let grads = |m: &Trained, reference: bool| -> Vec<Vec<f32>> {
+            let run = || {
+                let l = m
+                    .model
+                    .losses(&x, &eps, fed.as_ref(), cond.as_ref())
+                    .unwrap();
+                let total = ((&l.recon + (&l.kl * 0.5).unwrap()).unwrap() + &l.extra).unwrap();
+                total.backward().unwrap()
+            };
+            let g = if reference {
+                blocks::reference(run)
+            } else {
+                run()
+            };
+            sorted_vars(m)
+                .iter()
+                .map(|(_, v)| {
+                    g.get(v)
+                        .unwrap()
+                        .flatten_all()
+                        .unwrap()
+                        .to_vec1::<f32>()
+                        .unwrap()
+                })
+                .collect()
+        };
+        let part = |reference: bool| -> Vec<Vec<f32>> {
+            let (a, b) = (grads(&with, reference), grads(&without, reference));
+            a.iter()
+                .zip(&b)
+                .map(|(a, b)| a.iter().zip(b).map(|(x, y)| x - y).collect())
+                .collect()
+        };
+        let (pf, pr) = (part(false), part(true));
+        for ((n, _), (f, r)) in sorted_vars(&with).iter().zip(pf.iter().zip(&pr)) {
+            let e = rel(f, r);
+            assert!(
+                e < 1e-4,
+                "condition {on}: {n}: the rollout's part off by {e:e}"
+            );
+        }
+        assert!(pr.iter().any(|r| r.iter().any(|v| v.abs() > 1e-3)));
+    }
+}

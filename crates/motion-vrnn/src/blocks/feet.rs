@@ -368,7 +368,6 @@ impl FootLockOp {
         t: usize,
         f: usize,
     ) -> (Vec<f32>, Vec<f32>) {
-        let (kx, kz, kt) = (f - 3, f - 2, f - 1);
         let mut gx = vec![0.0f32; x.len()];
         let mut gl = vec![0.0f32; logits.len()];
         let mut g = vec![0.0f32; t * f];
@@ -391,54 +390,76 @@ impl FootLockOp {
             for s in 1..t {
                 let mut cur = g[s * f..(s + 1) * f].to_vec();
                 let k = self.lock_row(&g[(s - 1) * f..s * f], &mut cur, &lw[2 * s..2 * s + 2]);
-                let o = &gow[s * f..(s + 1) * f];
-                let gv = [o[kx] / self.std[kx], o[kz] / self.std[kz]];
                 let (gcur, gprev) = {
                     let (a, b) = gg.split_at_mut(s * f);
-                    (&mut b[..f], &mut a[(s - 1) * f..])
+                    (&mut b[..f], &mut a[(s - 1) * f..s * f])
                 };
-                gcur[kx] = o[kx] * (1.0 - k.alpha);
-                gcur[kz] = o[kz] * (1.0 - k.alpha);
-                let galpha = gv[0] * (k.lock[0] - k.free[0]) + gv[1] * (k.lock[1] - k.free[1]);
-                let gw_xz = [gv[0] * k.alpha / (k.w + EPS), gv[1] * k.alpha / (k.w + EPS)];
-                let gw = -(gw_xz[0] * k.lock[0] + gw_xz[1] * k.lock[1]);
-                let (mut gc, mut gs) = (0.0f32, 0.0f32);
-                for (i, &toe) in TOES.iter().enumerate() {
-                    let col = toe_col(toe);
-                    let other = 1.0 - k.p[1 - i];
-                    let gp = gw_xz[0] * k.v[i][0] + gw_xz[1] * k.v[i][1] + gw + galpha * other;
-                    glw[2 * s + i] += gp * k.p[i] * (1.0 - k.p[i]);
-                    let (gvx, gvz) = (gw_xz[0] * k.p[i], gw_xz[1] * k.p[i]);
-                    gprev[col] += gvx * self.std[col];
-                    gprev[col + 2] += gvz * self.std[col + 2];
-                    let glx = -k.c * gvx + k.s * gvz;
-                    let glz = -k.s * gvx - k.c * gvz;
-                    gcur[col] += glx * self.std[col];
-                    gcur[col + 2] += glz * self.std[col + 2];
-                    let [lx, lz] = k.l[i];
-                    gc += -lx * gvx - lz * gvz;
-                    gs += -lz * gvx + lx * gvz;
-                }
-                gcur[kt] += (-k.s * gc + k.c * gs) * self.std[kt];
+                self.lock_row_grad(&k, gcur, gprev, &mut glw[2 * s..2 * s + 2]);
             }
             // Through grounding.
             for (s, gr) in ground.iter().enumerate() {
-                let grow = &gg[s * f..(s + 1) * f];
-                let gshift: f32 = heights().map(|k| grow[k] / self.std[k]).sum();
                 let out = &mut gxw[s * f..(s + 1) * f];
-                out.copy_from_slice(grow);
-                for (i, &toe) in TOES.iter().enumerate() {
-                    let col = toe_col(toe) + 1;
-                    let dy = -gr.alpha * gr.p[i] / (gr.w + EPS);
-                    out[col] += gshift * dy * self.std[col];
-                    let dalpha = 1.0 - gr.p[1 - i];
-                    let dp = dalpha * (self.contact_height - gr.y_lock)
-                        - gr.alpha * (gr.y[i] - gr.y_lock) / (gr.w + EPS);
-                    glw[2 * s + i] += gshift * dp * gr.p[i] * (1.0 - gr.p[i]);
-                }
+                out.copy_from_slice(&gg[s * f..(s + 1) * f]);
+                self.ground_row_grad(gr, out, &mut glw[2 * s..2 * s + 2]);
             }
         }
         (gx, gl)
+    }
+
+    /// [`FootLockOp::lock_row`]'s backward for one row: `g` holds the locked
+    /// row's gradient and becomes the grounded row's; the gradients of the
+    /// row before it and of the two logits are added to `gprev` and `gl`.
+    #[inline(always)]
+    pub(crate) fn lock_row_grad(
+        &self,
+        k: &Locked,
+        g: &mut [f32],
+        gprev: &mut [f32],
+        gl: &mut [f32],
+    ) {
+        let f = g.len();
+        let (kx, kz, kt) = (f - 3, f - 2, f - 1);
+        let gv = [g[kx] / self.std[kx], g[kz] / self.std[kz]];
+        g[kx] *= 1.0 - k.alpha;
+        g[kz] *= 1.0 - k.alpha;
+        let galpha = gv[0] * (k.lock[0] - k.free[0]) + gv[1] * (k.lock[1] - k.free[1]);
+        let gw_xz = [gv[0] * k.alpha / (k.w + EPS), gv[1] * k.alpha / (k.w + EPS)];
+        let gw = -(gw_xz[0] * k.lock[0] + gw_xz[1] * k.lock[1]);
+        let (mut gc, mut gs) = (0.0f32, 0.0f32);
+        for (i, &toe) in TOES.iter().enumerate() {
+            let col = toe_col(toe);
+            let other = 1.0 - k.p[1 - i];
+            let gp = gw_xz[0] * k.v[i][0] + gw_xz[1] * k.v[i][1] + gw + galpha * other;
+            gl[i] += gp * k.p[i] * (1.0 - k.p[i]);
+            let (gvx, gvz) = (gw_xz[0] * k.p[i], gw_xz[1] * k.p[i]);
+            gprev[col] += gvx * self.std[col];
+            gprev[col + 2] += gvz * self.std[col + 2];
+            let glx = -k.c * gvx + k.s * gvz;
+            let glz = -k.s * gvx - k.c * gvz;
+            g[col] += glx * self.std[col];
+            g[col + 2] += glz * self.std[col + 2];
+            let [lx, lz] = k.l[i];
+            gc += -lx * gvx - lz * gvz;
+            gs += -lz * gvx + lx * gvz;
+        }
+        g[kt] += (-k.s * gc + k.c * gs) * self.std[kt];
+    }
+
+    /// [`FootLockOp::ground_row`]'s backward for one row: `g` holds the
+    /// grounded row's gradient and becomes the input row's; the logits'
+    /// gradients are added to `gl`.
+    #[inline(always)]
+    pub(crate) fn ground_row_grad(&self, gr: &Grounded, g: &mut [f32], gl: &mut [f32]) {
+        let gshift: f32 = heights().map(|k| g[k] / self.std[k]).sum();
+        for (i, &toe) in TOES.iter().enumerate() {
+            let col = toe_col(toe) + 1;
+            let dy = -gr.alpha * gr.p[i] / (gr.w + EPS);
+            g[col] += gshift * dy * self.std[col];
+            let dalpha = 1.0 - gr.p[1 - i];
+            let dp = dalpha * (self.contact_height - gr.y_lock)
+                - gr.alpha * (gr.y[i] - gr.y_lock) / (gr.w + EPS);
+            gl[i] += gshift * dp * gr.p[i] * (1.0 - gr.p[i]);
+        }
     }
 }
 

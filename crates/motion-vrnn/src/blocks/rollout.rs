@@ -1,6 +1,10 @@
 //! Scheduled sampling to every depth, fused: the recurrence, the prior, the
 //! decoder, the skeleton and the foot lock stepping together over one
-//! shard, forward only (no gradient flows through fed-back frames).
+//! shard. [`fed`] runs it forward only (no gradient flows through the
+//! fed-back frames, the default); [`RolloutOp`] keeps a tape ([`pass`]) and
+//! has its own backward ([`fed_backward`]: back through every step, the
+//! gradients of the real frames' features, every weight and the
+//! condition's rows), for `Parts::rollout_gradient`.
 //!
 //! Per step `t`, with `h`, `c` the LSTM state before it:
 //!
@@ -14,10 +18,11 @@
 //!
 //! Its reference is the model's own step loop in candle ops
 //! (`Vrnn::fed_in_sequence`), which gives what feed rounds give once there
-//! are as many rounds as fed frames; tested against it (`tests/models.rs`).
+//! are as many rounds as fed frames; the pass and its backward are tested
+//! against it and candle's autograd through it (`tests/models.rs`).
 
-use super::feet::FootLockOp;
-use super::kernels::{mm_rows, mm_small, rm, sigma, simd_fn, tr, Packed};
+use super::feet::{FootLockOp, Grounded, Locked};
+use super::kernels::{dsigma, mm_rows, mm_small, rm, sigma, simd_fn, tr, Packed};
 use super::scan::{activate, cell_rows};
 use super::skeleton::place_rows;
 
@@ -155,9 +160,40 @@ fn layer(
     }
 }
 
-simd_fn! {
 /// The fed-back frames `[B, T, input]` (see the module docs).
 pub fn fed(net: &Net, sh: &Shard) -> Vec<f32> {
+    pass(net, sh, None)
+}
+
+/// What [`pass`] keeps for [`fed_backward`], per row `t·B + s` (time-major).
+#[derive(Default)]
+pub struct Tape {
+    /// The state `h`, `c` before the step.
+    h: Vec<f32>,
+    c: Vec<f32>,
+    /// `σ` of the posterior and of the prior.
+    sq: Vec<f32>,
+    sp: Vec<f32>,
+    /// The posterior's draw, and the own frame's latent (filtered).
+    zq: Vec<f32>,
+    zf: Vec<f32>,
+    /// The decoder's hidden layers (after the ReLU) and its filtered output.
+    a1: Vec<f32>,
+    a2: Vec<f32>,
+    of: Vec<f32>,
+    ground: Vec<Grounded>,
+    lock: Vec<Option<Locked>>,
+    /// The feature extractor's layers on the fed frames (zero elsewhere).
+    q1: Vec<f32>,
+    q2: Vec<f32>,
+    /// The activated gates and `tanh c` after the step.
+    g: Vec<f32>,
+    tc: Vec<f32>,
+}
+
+simd_fn! {
+/// [`fed`], keeping what the backward needs in `tape` where given.
+pub fn pass(net: &Net, sh: &Shard, tape: Option<&mut Tape>) -> Vec<f32> {
     let (h, z, f, b, tt) = (net.hidden, net.latent, net.input, sh.b, sh.t);
     let (e2, d, bones) = (net.phi[1].out, &net.decoder, super::skeleton::BONES);
     let (z2, h4, zh, width) = (2 * z, 4 * h, z + h, d[2].out);
@@ -198,6 +234,27 @@ pub fn fed(net: &Net, sh: &Shard) -> Vec<f32> {
     let (mut fed_rows, mut xf) = (Vec::with_capacity(b), Vec::with_capacity(b * f));
     let (mut q1, mut q2) = (vec![0.0f32; b * net.phi[0].out], vec![0.0f32; b * e2]);
     let (mut gx, mut len) = (vec![0.0f32; b * h4], Vec::with_capacity(b * bones));
+    let mut tape = tape;
+    if let Some(k) = tape.as_deref_mut() {
+        let sized = |w: usize| vec![0.0f32; n * w];
+        *k = Tape {
+            h: sized(h),
+            c: sized(h),
+            sq: sized(z),
+            sp: sized(z),
+            zq: sized(z),
+            zf: sized(z),
+            a1: sized(d[0].out),
+            a2: sized(d[1].out),
+            of: sized(width),
+            ground: Vec::with_capacity(n),
+            lock: Vec::with_capacity(n),
+            q1: sized(net.phi[0].out),
+            q2: sized(e2),
+            g: sized(h4),
+            tc: sized(h),
+        };
+    }
     for t in 0..tt {
         let at = |s: usize| s * tt + t;
         // The posterior: e = enc_x + b (+ condition) + h · W_eᵀ; the prior:
@@ -231,6 +288,23 @@ pub fn fed(net: &Net, sh: &Shard) -> Vec<f32> {
         for (v, a) in of.iter_mut().zip(&o) {
             *v = if t > 0 && net.rho_out > 0.0 { net.rho_out * *v + g_out * a } else { *a };
         }
+        if let Some(k) = tape.as_deref_mut() {
+            let (hw, zw) = (t * b * h..(t + 1) * b * h, t * b * z..(t + 1) * b * z);
+            k.h[hw.clone()].copy_from_slice(&hs);
+            k.c[hw].copy_from_slice(&cs);
+            k.zq[zw.clone()].copy_from_slice(&zq);
+            k.zf[zw.clone()].copy_from_slice(&zf);
+            for s in 0..b {
+                for j in 0..z {
+                    k.sq[t * b * z + s * z + j] = sigma(e[s * z2 + z + j]);
+                    k.sp[t * b * z + s * z + j] = if t > 0 { sigma(p[s * z2 + z + j]) } else { 0.0 };
+                }
+            }
+            let rows = |w: usize| t * b * w..(t + 1) * b * w;
+            k.a1[rows(d[0].out)].copy_from_slice(&a1);
+            k.a2[rows(d[1].out)].copy_from_slice(&a2);
+            k.of[rows(width)].copy_from_slice(&of);
+        }
         // The own frame: the skeleton, then the foot lock against the last.
         for s in 0..b {
             own[s * f..(s + 1) * f].copy_from_slice(&of[s * width..s * width + f]);
@@ -246,9 +320,11 @@ pub fn fed(net: &Net, sh: &Shard) -> Vec<f32> {
             for s in 0..b {
                 let logits = &of[s * width + f..s * width + f + 2];
                 let row = &mut own[s * f..(s + 1) * f];
-                lock.ground_row(row, logits);
-                if t > 0 {
-                    lock.lock_row(&prev[s * f..(s + 1) * f], row, logits);
+                let gr = lock.ground_row(row, logits);
+                let lk = (t > 0).then(|| lock.lock_row(&prev[s * f..(s + 1) * f], row, logits));
+                if let Some(k) = tape.as_deref_mut() {
+                    k.ground.push(gr);
+                    k.lock.push(lk);
                 }
             }
         }
@@ -278,6 +354,13 @@ pub fn fed(net: &Net, sh: &Shard) -> Vec<f32> {
             for (i, &s) in fed_rows.iter().enumerate() {
                 g[s * h4..(s + 1) * h4].copy_from_slice(&gx[i * h4..(i + 1) * h4]);
             }
+            if let Some(tp) = tape.as_deref_mut() {
+                let (e1, r) = (net.phi[0].out, t * b);
+                for (i, &s) in fed_rows.iter().enumerate() {
+                    tp.q1[(r + s) * e1..(r + s + 1) * e1].copy_from_slice(&q1[i * e1..(i + 1) * e1]);
+                    tp.q2[(r + s) * e2..(r + s + 1) * e2].copy_from_slice(&q2[i * e2..(i + 1) * e2]);
+                }
+            }
         }
         // The gates: + condition + z · W_zᵀ + h · W_hᵀ, then the cell.
         if let Some((c, w)) = c_pre {
@@ -299,9 +382,437 @@ pub fn fed(net: &Net, sh: &Shard) -> Vec<f32> {
             for k in 0..h {
                 hs[s * h + k] = gr[3 * h + k] * tc[k];
             }
+            if let Some(tp) = tape.as_deref_mut() {
+                let r = t * b + s;
+                tp.g[r * h4..(r + 1) * h4].copy_from_slice(gr);
+                tp.tc[r * h..(r + 1) * h].copy_from_slice(&tc);
+            }
         }
         std::mem::swap(&mut prev, &mut own);
     }
     out
 }
+}
+
+/// A dense layer's gradients (`w`: `out × in`, as [`Dense`]).
+#[derive(Clone, Debug)]
+pub struct DenseGrad {
+    pub w: Vec<f32>,
+    pub b: Vec<f32>,
+}
+
+impl DenseGrad {
+    fn of(d: &Dense) -> DenseGrad {
+        DenseGrad {
+            w: vec![0.0; d.w.len()],
+            b: vec![0.0; d.b.len()],
+        }
+    }
+}
+
+/// What [`fed_backward`] gives: the gradients of the real frames' features
+/// (`[B, T, E2]`), of every weight of the [`Net`], and of the condition's
+/// rows (the shapes of [`Cond`]'s).
+#[derive(Clone, Debug)]
+pub struct Grads {
+    pub feat: Vec<f32>,
+    pub phi: [DenseGrad; 2],
+    pub encoder: DenseGrad,
+    pub prior: DenseGrad,
+    pub decoder: [DenseGrad; 3],
+    pub w_ih: Vec<f32>,
+    pub w_hh: Vec<f32>,
+    pub b_gates: Vec<f32>,
+    pub cond: Option<[Vec<f32>; 3]>,
+}
+
+/// One row through a dense layer's backward: `dw[:, from..from + k] +=
+/// dy ⊗ a` (`k = a.len()`) and, where asked, `da += dy · W[:, from..from + k]`.
+#[inline(always)]
+fn back_row(
+    w: &[f32],
+    inp: usize,
+    from: usize,
+    dy: &[f32],
+    a: &[f32],
+    dw: &mut [f32],
+    mut da: Option<&mut [f32]>,
+) {
+    let k = a.len();
+    for (j, &g) in dy.iter().enumerate() {
+        let at = j * inp + from;
+        for (d, &v) in dw[at..at + k].iter_mut().zip(a) {
+            *d += g * v;
+        }
+        if let Some(da) = da.as_deref_mut() {
+            for (d, &v) in da[..k].iter_mut().zip(&w[at..at + k]) {
+                *d += g * v;
+            }
+        }
+    }
+}
+
+/// `dst += src`, element by element.
+#[inline(always)]
+fn add(dst: &mut [f32], src: &[f32]) {
+    for (d, &v) in dst.iter_mut().zip(src) {
+        *d += v;
+    }
+}
+
+/// Zero where the layer's output `y` is not positive (a ReLU's backward).
+#[inline(always)]
+fn relu_back(g: &mut [f32], y: &[f32]) {
+    for (d, &v) in g.iter_mut().zip(y) {
+        if v <= 0.0 {
+            *d = 0.0;
+        }
+    }
+}
+
+simd_fn! {
+/// The backward of [`pass`]: the gradients of everything the fed frames
+/// `fed` (its output) were made of, given theirs (`dout`, `[B, T, input]`),
+/// through every step of the recurrence, the prior's draws, the decoder,
+/// the filters, the skeleton and the foot lock (module docs).
+#[allow(clippy::needless_range_loop)] // several arrays indexed alike
+pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32]) -> Grads {
+    let (h, z, f, b, tt) = (net.hidden, net.latent, net.input, sh.b, sh.t);
+    let (e1, e2, d) = (net.phi[0].out, net.phi[1].out, &net.decoder);
+    let (z2, h4, zh, width) = (2 * z, 4 * h, z + h, d[2].out);
+    let (enc_in, gin) = (net.encoder.inp, e2 + z);
+    let gain = |rho: f32| (1.0 - rho * rho).max(0.0).sqrt();
+    let (g_in, g_out) = (gain(net.rho), gain(net.rho_out));
+    let place = net.place.as_ref().map(|(mean, std)| super::skeleton::PlaceOp {
+        mean: mean.clone(),
+        std: std.clone(),
+    });
+    let bones = super::skeleton::BONES;
+    let mut gr = Grads {
+        feat: vec![0.0; b * tt * e2],
+        phi: [DenseGrad::of(&net.phi[0]), DenseGrad::of(&net.phi[1])],
+        encoder: DenseGrad::of(&net.encoder),
+        prior: DenseGrad::of(&net.prior),
+        decoder: [DenseGrad::of(&d[0]), DenseGrad::of(&d[1]), DenseGrad::of(&d[2])],
+        w_ih: vec![0.0; net.w_ih.len()],
+        w_hh: vec![0.0; net.w_hh.len()],
+        b_gates: vec![0.0; h4],
+        cond: sh
+            .cond
+            .as_ref()
+            .map(|c| [vec![0.0; c.pre.len()], vec![0.0; c.prior.len()], vec![0.0; c.decoder.len()]]),
+    };
+    // Which row of a condition's slice a sequence reads (one shared row, or
+    // one per sequence).
+    let crow = |len: usize, w: usize, s: usize| if len == w { 0 } else { s * w };
+    // Carried between steps: d h_t and d c_t, the filters' and the lock's
+    // gradients of the step before.
+    let (mut dh, mut dc, mut dhp) = (vec![0.0f32; b * h], vec![0.0f32; b * h], vec![0.0f32; b * h]);
+    let (mut czf, mut cof) = (vec![0.0f32; b * z], vec![0.0f32; b * width]);
+    let (mut cprev, mut cnext) = (vec![0.0f32; b * f], vec![0.0f32; b * f]);
+    let mut dg = vec![0.0f32; h4];
+    let (mut dzq, mut dzp, mut dx) = (vec![0.0f32; z], vec![0.0f32; z], vec![0.0f32; f]);
+    let (mut dq1, mut dq2) = (vec![0.0f32; e1], vec![0.0f32; e2]);
+    let (mut down, mut dof) = (vec![0.0f32; f], vec![0.0f32; width]);
+    let (mut da1, mut da2) = (vec![0.0f32; d[0].out], vec![0.0f32; d[1].out]);
+    let (mut u, mut du) = (vec![0.0f32; zh], vec![0.0f32; zh]);
+    let (mut dp, mut de) = (vec![0.0f32; z2], vec![0.0f32; z2]);
+    for t in (0..tt).rev() {
+        dhp.fill(0.0);
+        cnext.fill(0.0);
+        for s in 0..b {
+            let (r, q) = (t * b + s, s * tt + t);
+            let hprev = &tape.h[r * h..(r + 1) * h];
+            // The cell: d h_t, d c_t → the gates' pre-activations, d c_{t−1}.
+            let (gt, tcr) = (&tape.g[r * h4..(r + 1) * h4], &tape.tc[r * h..(r + 1) * h]);
+            let c_prev = &tape.c[r * h..(r + 1) * h];
+            for k in 0..h {
+                let (ig, fg, gv, og) = (gt[k], gt[h + k], gt[2 * h + k], gt[3 * h + k]);
+                let (tcv, dhv) = (tcr[k], dh[s * h + k]);
+                let dcv = dc[s * h + k] + dhv * og * (1.0 - tcv * tcv);
+                dc[s * h + k] = dcv * fg;
+                dg[k] = dcv * gv * ig * (1.0 - ig);
+                dg[h + k] = dcv * c_prev[k] * fg * (1.0 - fg);
+                dg[2 * h + k] = dcv * ig * (1.0 - gv * gv);
+                dg[3 * h + k] = dhv * tcv * og * (1.0 - og);
+            }
+            // The gates' inputs: bias, condition, z_q, h_{t−1}, and the
+            // frame's features (the fed frame's own, or the real one's).
+            add(&mut gr.b_gates, &dg);
+            if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
+                let at = crow(c.pre.len(), z2 + h4, s);
+                add(&mut gc[0][at + z2..at + z2 + h4], &dg);
+            }
+            dzq.fill(0.0);
+            back_row(&net.w_ih, gin, e2, &dg, &tape.zq[r * z..(r + 1) * z], &mut gr.w_ih, Some(&mut dzq));
+            if t > 0 {
+                back_row(&net.w_hh, h, 0, &dg, hprev, &mut gr.w_hh, Some(&mut dhp[s * h..(s + 1) * h]));
+            }
+            let m = sh.mask[q];
+            dx.fill(0.0);
+            if m != 0.0 {
+                let (q1, q2) = (&tape.q1[r * e1..(r + 1) * e1], &tape.q2[r * e2..(r + 1) * e2]);
+                dq2.fill(0.0);
+                back_row(&net.w_ih, gin, 0, &dg, q2, &mut gr.w_ih, Some(&mut dq2));
+                relu_back(&mut dq2, q2);
+                add(&mut gr.phi[1].b, &dq2);
+                dq1.fill(0.0);
+                back_row(&net.phi[1].w, e1, 0, &dq2, q1, &mut gr.phi[1].w, Some(&mut dq1));
+                relu_back(&mut dq1, q1);
+                add(&mut gr.phi[0].b, &dq1);
+                let xf = &fed[q * f..(q + 1) * f];
+                back_row(&net.phi[0].w, f, 0, &dq1, xf, &mut gr.phi[0].w, Some(&mut dx));
+            } else {
+                let ft = &sh.feat[q * e2..(q + 1) * e2];
+                back_row(&net.w_ih, gin, 0, &dg, ft, &mut gr.w_ih, Some(&mut gr.feat[q * e2..(q + 1) * e2]));
+            }
+            // The fed frame x + m (own − x) → the own frame, plus what the
+            // next step's lock gave it.
+            for k in 0..f {
+                down[k] = m * (dout[q * f + k] + dx[k]) + cprev[s * f + k];
+            }
+            let mut dlog = [0.0f32; 2];
+            if let Some(lock) = &net.lock {
+                if let Some(lk) = &tape.lock[r] {
+                    lock.lock_row_grad(lk, &mut down, &mut cnext[s * f..(s + 1) * f], &mut dlog);
+                }
+                lock.ground_row_grad(&tape.ground[r], &mut down, &mut dlog);
+            }
+            let ofr = &tape.of[r * width..(r + 1) * width];
+            if let (Some(p), Some(l)) = (&place, sh.lengths) {
+                p.row_grad(&ofr[..f], &l[q * bones..(q + 1) * bones], &mut down);
+            }
+            // The output filter.
+            dof[..f].copy_from_slice(&down);
+            dof[f..].fill(0.0);
+            if width >= f + 2 && net.lock.is_some() {
+                dof[f..f + 2].copy_from_slice(&dlog);
+            }
+            let filt = t > 0 && net.rho_out > 0.0;
+            for j in 0..width {
+                let v = dof[j] + cof[s * width + j];
+                dof[j] = if filt { g_out * v } else { v };
+                cof[s * width + j] = if filt { net.rho_out * v } else { 0.0 };
+            }
+            // The decoder.
+            let (a1, a2) = (&tape.a1[r * d[0].out..(r + 1) * d[0].out], &tape.a2[r * d[1].out..(r + 1) * d[1].out]);
+            add(&mut gr.decoder[2].b, &dof);
+            da2.fill(0.0);
+            back_row(&d[2].w, d[2].inp, 0, &dof, a2, &mut gr.decoder[2].w, Some(&mut da2));
+            relu_back(&mut da2, a2);
+            add(&mut gr.decoder[1].b, &da2);
+            da1.fill(0.0);
+            back_row(&d[1].w, d[1].inp, 0, &da2, a1, &mut gr.decoder[1].w, Some(&mut da1));
+            relu_back(&mut da1, a1);
+            add(&mut gr.decoder[0].b, &da1);
+            if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
+                let at = crow(c.decoder.len(), d[0].out, s);
+                add(&mut gc[2][at..at + d[0].out], &da1);
+            }
+            u[..z].copy_from_slice(&tape.zf[r * z..(r + 1) * z]);
+            u[z..].copy_from_slice(hprev);
+            du.fill(0.0);
+            back_row(&d[0].w, zh, 0, &da1, &u, &mut gr.decoder[0].w, Some(&mut du));
+            add(&mut dhp[s * h..(s + 1) * h], &du[z..]);
+            // The latent filter.
+            let filt = t > 0 && net.rho > 0.0;
+            for j in 0..z {
+                let v = du[j] + czf[s * z + j];
+                dzp[j] = if filt { g_in * v } else { v };
+                czf[s * z + j] = if filt { net.rho * v } else { 0.0 };
+            }
+            // The prior's draw (its noise alone at the first step).
+            if t > 0 {
+                for j in 0..z {
+                    dp[j] = dzp[j];
+                    dp[z + j] = dzp[j] * sh.e[q * z + j] * dsigma(tape.sp[r * z + j]);
+                }
+                add(&mut gr.prior.b, &dp);
+                if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
+                    let at = crow(c.prior.len(), z2, s);
+                    add(&mut gc[1][at..at + z2], &dp);
+                }
+                back_row(&net.prior.w, h, 0, &dp, hprev, &mut gr.prior.w, Some(&mut dhp[s * h..(s + 1) * h]));
+            }
+            // The posterior's draw: from the real frame's features and h.
+            for j in 0..z {
+                de[j] = dzq[j];
+                de[z + j] = dzq[j] * sh.eps[q * z + j] * dsigma(tape.sq[r * z + j]);
+            }
+            add(&mut gr.encoder.b, &de);
+            if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
+                let at = crow(c.pre.len(), z2 + h4, s);
+                add(&mut gc[0][at..at + z2], &de);
+            }
+            let ft = &sh.feat[q * e2..(q + 1) * e2];
+            back_row(&net.encoder.w, enc_in, 0, &de, ft, &mut gr.encoder.w, Some(&mut gr.feat[q * e2..(q + 1) * e2]));
+            if t > 0 {
+                back_row(&net.encoder.w, enc_in, e2, &de, hprev, &mut gr.encoder.w, Some(&mut dhp[s * h..(s + 1) * h]));
+            }
+        }
+        std::mem::swap(&mut dh, &mut dhp);
+        std::mem::swap(&mut cprev, &mut cnext);
+    }
+    gr
+}
+}
+
+impl Grads {
+    /// The weights' gradients as one vector, in [`RolloutOp`]'s order.
+    fn weights(&self) -> Vec<f32> {
+        let mut v = Vec::new();
+        let dense = [
+            &self.phi[0],
+            &self.phi[1],
+            &self.encoder,
+            &self.prior,
+            &self.decoder[0],
+            &self.decoder[1],
+            &self.decoder[2],
+        ];
+        for g in dense {
+            v.extend_from_slice(&g.w);
+            v.extend_from_slice(&g.b);
+        }
+        v.extend_from_slice(&self.w_ih);
+        v.extend_from_slice(&self.w_hh);
+        v.extend_from_slice(&self.b_gates);
+        v
+    }
+}
+
+/// [`pass`] with its backward ([`fed_backward`]) as a candle op, so the
+/// gradient flows through the fed-back frames. Inputs: the real frames'
+/// features `[B, T, E2]`; every weight of the [`Net`] as one vector
+/// (`w`, `b` of φ₁, φ₂, the encoder `[μ | logit σ]`, the prior, the
+/// decoder's three layers, then `W_ih`, `W_hh`, `b_ih + b_hh`), whose
+/// values `net` holds; the condition's rows `[n, 1, pre | prior | decoder]`
+/// (anything, unused, without a condition).
+pub struct RolloutOp {
+    pub net: Net,
+    pub b: usize,
+    pub t: usize,
+    pub x: Vec<f32>,
+    pub eps: Vec<f32>,
+    pub e: Vec<f32>,
+    pub mask: Vec<f32>,
+    pub lengths: Option<Vec<f32>>,
+    /// The widths of the condition's parts (pre, prior, decoder), if any.
+    pub cond: Option<[usize; 3]>,
+    pub tape: std::sync::Mutex<Option<Tape>>,
+}
+
+impl RolloutOp {
+    /// The condition's rows cut into its three parts.
+    fn cond_parts(&self, c: &[f32]) -> Option<[Vec<f32>; 3]> {
+        let [a, b, d] = self.cond?;
+        let w = a + b + d;
+        let mut parts = [Vec::new(), Vec::new(), Vec::new()];
+        for row in c.chunks_exact(w) {
+            parts[0].extend_from_slice(&row[..a]);
+            parts[1].extend_from_slice(&row[a..a + b]);
+            parts[2].extend_from_slice(&row[a + b..]);
+        }
+        Some(parts)
+    }
+
+    fn shard<'a>(&'a self, feat: &'a [f32], cond: Option<&'a [Vec<f32>; 3]>) -> Shard<'a> {
+        Shard {
+            b: self.b,
+            t: self.t,
+            x: &self.x,
+            feat,
+            eps: &self.eps,
+            e: &self.e,
+            mask: &self.mask,
+            lengths: self.lengths.as_deref(),
+            cond: cond.map(|[pre, prior, decoder]| Cond {
+                pre,
+                prior,
+                decoder,
+            }),
+        }
+    }
+}
+
+impl candle_core::CustomOp3 for RolloutOp {
+    fn name(&self) -> &'static str {
+        "rollout"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &candle_core::CpuStorage,
+        l1: &candle_core::Layout,
+        _s2: &candle_core::CpuStorage,
+        _l2: &candle_core::Layout,
+        s3: &candle_core::CpuStorage,
+        l3: &candle_core::Layout,
+    ) -> candle_core::Result<(candle_core::CpuStorage, candle_core::Shape)> {
+        let feat = super::slice(s1, l1, "feat")?;
+        let parts = self.cond_parts(super::slice(s3, l3, "cond")?);
+        let mut tape = Tape::default();
+        let out = pass(
+            &self.net,
+            &self.shard(feat, parts.as_ref()),
+            Some(&mut tape),
+        );
+        *self.tape.lock().unwrap_or_else(|p| p.into_inner()) = Some(tape);
+        let shape = candle_core::Shape::from((self.b, self.t, self.net.input));
+        Ok((candle_core::CpuStorage::F32(out), shape))
+    }
+
+    fn bwd(
+        &self,
+        feat: &candle_core::Tensor,
+        w: &candle_core::Tensor,
+        cond: &candle_core::Tensor,
+        res: &candle_core::Tensor,
+        grad: &candle_core::Tensor,
+    ) -> candle_core::Result<(
+        Option<candle_core::Tensor>,
+        Option<candle_core::Tensor>,
+        Option<candle_core::Tensor>,
+    )> {
+        use super::{tensor, with_values};
+        let cached = self.tape.lock().unwrap_or_else(|p| p.into_inner()).take();
+        let g = with_values(feat, |fv| {
+            with_values(cond, |cv| {
+                let parts = self.cond_parts(cv);
+                let sh = self.shard(fv, parts.as_ref());
+                let tape = match cached {
+                    Some(t) => t,
+                    None => {
+                        let mut t = Tape::default();
+                        pass(&self.net, &sh, Some(&mut t));
+                        t
+                    }
+                };
+                with_values(res, |out| {
+                    with_values(grad, |go| Ok(fed_backward(&self.net, &sh, &tape, out, go)))
+                })
+            })
+        })?;
+        let dcond = match (&g.cond, self.cond) {
+            (Some([a, b, d]), Some([wa, wb, wd])) => {
+                let mut v = Vec::with_capacity(cond.elem_count());
+                for ((ra, rb), rd) in a
+                    .chunks_exact(wa)
+                    .zip(b.chunks_exact(wb))
+                    .zip(d.chunks_exact(wd))
+                {
+                    v.extend_from_slice(ra);
+                    v.extend_from_slice(rb);
+                    v.extend_from_slice(rd);
+                }
+                Some(tensor(v, cond.dims(), cond)?)
+            }
+            _ => None,
+        };
+        Ok((
+            Some(tensor(g.feat.clone(), feat.dims(), feat)?),
+            Some(tensor(g.weights(), w.dims(), w)?),
+            dcond,
+        ))
+    }
 }

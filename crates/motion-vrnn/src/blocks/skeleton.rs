@@ -358,9 +358,9 @@ pub(crate) fn place_rows(o: &[f32], len: &[f32], mean: &[f32], std: &[f32]) -> V
 }
 
 /// The fused [`place`]: inputs `(o, lengths)`.
-struct PlaceOp {
-    mean: Vec<f32>,
-    std: Vec<f32>,
+pub(crate) struct PlaceOp {
+    pub(crate) mean: Vec<f32>,
+    pub(crate) std: Vec<f32>,
 }
 
 impl PlaceOp {
@@ -381,6 +381,42 @@ impl PlaceOp {
             d[j] = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
         }
         (y, d)
+    }
+}
+
+impl PlaceOp {
+    /// The backward of one row `o` with bone lengths `l`: `gr` holds the
+    /// placed row's gradient and becomes `o`'s.
+    #[inline(always)]
+    pub(crate) fn row_grad(&self, o: &[f32], l: &[f32], gr: &mut [f32]) {
+        let (_, d) = self.bones(o);
+        // Gradient of each placed joint, children added in.
+        let mut gp = [[0.0f32; 3]; NUM_JOINTS];
+        for (j, gj) in gp.iter_mut().enumerate().skip(1) {
+            for (k, v) in gj.iter_mut().enumerate() {
+                let c = 1 + 3 * (j - 1) + k;
+                *v = gr[c] / self.std[c];
+            }
+        }
+        // Through forward kinematics to the bone vectors.
+        let gd = fk_row_backward(&d, l, &mut gp);
+        // Bone vectors → raw joints (a joint minus its parent).
+        let mut graw = [[0.0f32; 3]; NUM_JOINTS];
+        for j in 1..NUM_JOINTS {
+            for k in 0..3 {
+                graw[j][k] += gd[j][k];
+                graw[parent(j)][k] -= gd[j][k];
+            }
+        }
+        // The root height moves every placed joint (gp[0]) and is the
+        // parent of the bones from the root (graw[0]).
+        gr[0] += (gp[0][1] + graw[0][1]) * self.std[0];
+        for (j, gj) in graw.iter().enumerate().skip(1) {
+            for (k, v) in gj.iter().enumerate() {
+                let c = 1 + 3 * (j - 1) + k;
+                gr[c] = v * self.std[c];
+            }
+        }
     }
 }
 
@@ -418,34 +454,7 @@ impl CustomOp2 for PlaceOp {
                         .zip(len.chunks_exact(BONES))
                         .zip(go.chunks_exact_mut(f));
                     for ((row, l), gr) in rows {
-                        let (_, d) = self.bones(row);
-                        // Gradient of each placed joint, children added in.
-                        let mut gp = [[0.0f32; 3]; NUM_JOINTS];
-                        for (j, gj) in gp.iter_mut().enumerate().skip(1) {
-                            for (k, v) in gj.iter_mut().enumerate() {
-                                let c = 1 + 3 * (j - 1) + k;
-                                *v = gr[c] / self.std[c];
-                            }
-                        }
-                        // Through forward kinematics to the bone vectors.
-                        let gd = fk_row_backward(&d, l, &mut gp);
-                        // Bone vectors → raw joints (a joint minus its parent).
-                        let mut graw = [[0.0f32; 3]; NUM_JOINTS];
-                        for j in 1..NUM_JOINTS {
-                            for k in 0..3 {
-                                graw[j][k] += gd[j][k];
-                                graw[parent(j)][k] -= gd[j][k];
-                            }
-                        }
-                        // The root height moves every placed joint (gp[0]) and
-                        // is the parent of the bones from the root (graw[0]).
-                        gr[0] += (gp[0][1] + graw[0][1]) * self.std[0];
-                        for (j, gj) in graw.iter().enumerate().skip(1) {
-                            for (k, v) in gj.iter().enumerate() {
-                                let c = 1 + 3 * (j - 1) + k;
-                                gr[c] = v * self.std[c];
-                            }
-                        }
+                        self.row_grad(row, l, gr);
                     }
                     Ok(go)
                 })
