@@ -22,7 +22,7 @@
 //! against it and candle's autograd through it (`tests/models.rs`).
 
 use super::feet::{FootLockOp, Grounded, Locked};
-use super::kernels::{dsigma, mm_rows, mm_small, rm, sigma, simd_fn, tr, Packed};
+use super::kernels::{dsigma, mm, mm_rows, mm_small, rm, sigma, simd_fn, tr, Packed};
 use super::scan::{activate, cell_rows};
 use super::skeleton::place_rows;
 
@@ -426,30 +426,42 @@ pub struct Grads {
     pub cond: Option<[Vec<f32>; 3]>,
 }
 
-/// One row through a dense layer's backward: `dw[:, from..from + k] +=
-/// dy ⊗ a` (`k = a.len()`) and, where asked, `da += dy · W[:, from..from + k]`.
+/// One row back through a dense layer's input: `da += dy · W[:, from..from
+/// + k]` (`k = da.len()`). Its weights' gradients are taken over all rows
+/// at the end ([`weight_grad`]).
 #[inline(always)]
-fn back_row(
-    w: &[f32],
+fn through(w: &[f32], inp: usize, from: usize, dy: &[f32], da: &mut [f32]) {
+    let k = da.len();
+    for (j, &g) in dy.iter().enumerate() {
+        let at = j * inp + from;
+        for (d, &v) in da.iter_mut().zip(&w[at..at + k]) {
+            *d += g * v;
+        }
+    }
+}
+
+/// `dw[:, from..from + k] += Σ_rows dyᵀ a` over `n` rows (`dy`: `n × out`,
+/// `a`: `n × k`, `dw`: `out × inp`), one product.
+fn weight_grad(
+    dw: &mut [f32],
     inp: usize,
     from: usize,
     dy: &[f32],
+    out: usize,
     a: &[f32],
-    dw: &mut [f32],
-    mut da: Option<&mut [f32]>,
+    k: usize,
 ) {
-    let k = a.len();
-    for (j, &g) in dy.iter().enumerate() {
-        let at = j * inp + from;
-        for (d, &v) in dw[at..at + k].iter_mut().zip(a) {
-            *d += g * v;
-        }
-        if let Some(da) = da.as_deref_mut() {
-            for (d, &v) in da[..k].iter_mut().zip(&w[at..at + k]) {
-                *d += g * v;
-            }
-        }
-    }
+    let n = a.len() / k.max(1);
+    mm(
+        (out, k, n),
+        dw,
+        rm(from, inp),
+        true,
+        dy,
+        tr(0, out),
+        a,
+        rm(0, k),
+    );
 }
 
 /// `dst += src`, element by element.
@@ -510,22 +522,27 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
     let (mut dh, mut dc, mut dhp) = (vec![0.0f32; b * h], vec![0.0f32; b * h], vec![0.0f32; b * h]);
     let (mut czf, mut cof) = (vec![0.0f32; b * z], vec![0.0f32; b * width]);
     let (mut cprev, mut cnext) = (vec![0.0f32; b * f], vec![0.0f32; b * f]);
-    let mut dg = vec![0.0f32; h4];
-    let (mut dzq, mut dzp, mut dx) = (vec![0.0f32; z], vec![0.0f32; z], vec![0.0f32; f]);
-    let (mut dq1, mut dq2) = (vec![0.0f32; e1], vec![0.0f32; e2]);
-    let (mut down, mut dof) = (vec![0.0f32; f], vec![0.0f32; width]);
-    let (mut da1, mut da2) = (vec![0.0f32; d[0].out], vec![0.0f32; d[1].out]);
-    let (mut u, mut du) = (vec![0.0f32; zh], vec![0.0f32; zh]);
-    let (mut dp, mut de) = (vec![0.0f32; z2], vec![0.0f32; z2]);
+    let (mut dx, mut down, mut du) = (vec![0.0f32; f], vec![0.0f32; f], vec![0.0f32; zh]);
+    // Each layer's output gradient per row (`t·B + s`), and the inputs the
+    // tape does not hold in that order, for the weights' gradients at the
+    // end: the gates (`[n, 4H]`) read the features `xin` (the fed frame's,
+    // or the real one's) and `z_q`, `h`; φ₁, φ₂ the fed frames (`xf`);
+    // the posterior the real features (`fr`) and `h`.
+    let n = b * tt;
+    let rows = |w: usize| vec![0.0f32; n * w];
+    let (mut dgs, mut dzq, mut xin, mut fr) = (rows(h4), rows(z), rows(e2), rows(e2));
+    let (mut dq2, mut dq1, mut xf) = (rows(e2), rows(e1), rows(f));
+    let (mut dofs, mut da2, mut da1) = (rows(width), rows(d[1].out), rows(d[0].out));
+    let (mut dps, mut des) = (rows(z2), rows(z2));
     for t in (0..tt).rev() {
         dhp.fill(0.0);
         cnext.fill(0.0);
         for s in 0..b {
             let (r, q) = (t * b + s, s * tt + t);
-            let hprev = &tape.h[r * h..(r + 1) * h];
             // The cell: d h_t, d c_t → the gates' pre-activations, d c_{t−1}.
             let (gt, tcr) = (&tape.g[r * h4..(r + 1) * h4], &tape.tc[r * h..(r + 1) * h]);
             let c_prev = &tape.c[r * h..(r + 1) * h];
+            let dg = &mut dgs[r * h4..(r + 1) * h4];
             for k in 0..h {
                 let (ig, fg, gv, og) = (gt[k], gt[h + k], gt[2 * h + k], gt[3 * h + k]);
                 let (tcv, dhv) = (tcr[k], dh[s * h + k]);
@@ -536,35 +553,38 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 dg[2 * h + k] = dcv * ig * (1.0 - gv * gv);
                 dg[3 * h + k] = dhv * tcv * og * (1.0 - og);
             }
+            let dg = &dgs[r * h4..(r + 1) * h4];
             // The gates' inputs: bias, condition, z_q, h_{t−1}, and the
             // frame's features (the fed frame's own, or the real one's).
-            add(&mut gr.b_gates, &dg);
+            add(&mut gr.b_gates, dg);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
                 let at = crow(c.pre.len(), z2 + h4, s);
-                add(&mut gc[0][at + z2..at + z2 + h4], &dg);
+                add(&mut gc[0][at + z2..at + z2 + h4], dg);
             }
-            dzq.fill(0.0);
-            back_row(&net.w_ih, gin, e2, &dg, &tape.zq[r * z..(r + 1) * z], &mut gr.w_ih, Some(&mut dzq));
+            through(&net.w_ih, gin, e2, dg, &mut dzq[r * z..(r + 1) * z]);
             if t > 0 {
-                back_row(&net.w_hh, h, 0, &dg, hprev, &mut gr.w_hh, Some(&mut dhp[s * h..(s + 1) * h]));
+                through(&net.w_hh, h, 0, dg, &mut dhp[s * h..(s + 1) * h]);
             }
             let m = sh.mask[q];
+            let ft = &sh.feat[q * e2..(q + 1) * e2];
+            fr[r * e2..(r + 1) * e2].copy_from_slice(ft);
             dx.fill(0.0);
             if m != 0.0 {
                 let (q1, q2) = (&tape.q1[r * e1..(r + 1) * e1], &tape.q2[r * e2..(r + 1) * e2]);
-                dq2.fill(0.0);
-                back_row(&net.w_ih, gin, 0, &dg, q2, &mut gr.w_ih, Some(&mut dq2));
-                relu_back(&mut dq2, q2);
-                add(&mut gr.phi[1].b, &dq2);
-                dq1.fill(0.0);
-                back_row(&net.phi[1].w, e1, 0, &dq2, q1, &mut gr.phi[1].w, Some(&mut dq1));
-                relu_back(&mut dq1, q1);
-                add(&mut gr.phi[0].b, &dq1);
-                let xf = &fed[q * f..(q + 1) * f];
-                back_row(&net.phi[0].w, f, 0, &dq1, xf, &mut gr.phi[0].w, Some(&mut dx));
+                xin[r * e2..(r + 1) * e2].copy_from_slice(q2);
+                let g2 = &mut dq2[r * e2..(r + 1) * e2];
+                through(&net.w_ih, gin, 0, dg, g2);
+                relu_back(g2, q2);
+                add(&mut gr.phi[1].b, g2);
+                let g1 = &mut dq1[r * e1..(r + 1) * e1];
+                through(&net.phi[1].w, e1, 0, &dq2[r * e2..(r + 1) * e2], g1);
+                relu_back(g1, q1);
+                add(&mut gr.phi[0].b, g1);
+                through(&net.phi[0].w, f, 0, g1, &mut dx);
+                xf[r * f..(r + 1) * f].copy_from_slice(&fed[q * f..(q + 1) * f]);
             } else {
-                let ft = &sh.feat[q * e2..(q + 1) * e2];
-                back_row(&net.w_ih, gin, 0, &dg, ft, &mut gr.w_ih, Some(&mut gr.feat[q * e2..(q + 1) * e2]));
+                xin[r * e2..(r + 1) * e2].copy_from_slice(ft);
+                through(&net.w_ih, gin, 0, dg, &mut gr.feat[q * e2..(q + 1) * e2]);
             }
             // The fed frame x + m (own − x) → the own frame, plus what the
             // next step's lock gave it.
@@ -583,8 +603,8 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 p.row_grad(&ofr[..f], &l[q * bones..(q + 1) * bones], &mut down);
             }
             // The output filter.
+            let dof = &mut dofs[r * width..(r + 1) * width];
             dof[..f].copy_from_slice(&down);
-            dof[f..].fill(0.0);
             if width >= f + 2 && net.lock.is_some() {
                 dof[f..f + 2].copy_from_slice(&dlog);
             }
@@ -594,65 +614,83 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 dof[j] = if filt { g_out * v } else { v };
                 cof[s * width + j] = if filt { net.rho_out * v } else { 0.0 };
             }
+            let dof = &dofs[r * width..(r + 1) * width];
             // The decoder.
             let (a1, a2) = (&tape.a1[r * d[0].out..(r + 1) * d[0].out], &tape.a2[r * d[1].out..(r + 1) * d[1].out]);
-            add(&mut gr.decoder[2].b, &dof);
-            da2.fill(0.0);
-            back_row(&d[2].w, d[2].inp, 0, &dof, a2, &mut gr.decoder[2].w, Some(&mut da2));
-            relu_back(&mut da2, a2);
-            add(&mut gr.decoder[1].b, &da2);
-            da1.fill(0.0);
-            back_row(&d[1].w, d[1].inp, 0, &da2, a1, &mut gr.decoder[1].w, Some(&mut da1));
-            relu_back(&mut da1, a1);
-            add(&mut gr.decoder[0].b, &da1);
+            add(&mut gr.decoder[2].b, dof);
+            let g2 = &mut da2[r * d[1].out..(r + 1) * d[1].out];
+            through(&d[2].w, d[2].inp, 0, dof, g2);
+            relu_back(g2, a2);
+            add(&mut gr.decoder[1].b, g2);
+            let g1 = &mut da1[r * d[0].out..(r + 1) * d[0].out];
+            through(&d[1].w, d[1].inp, 0, &da2[r * d[1].out..(r + 1) * d[1].out], g1);
+            relu_back(g1, a1);
+            let g1 = &da1[r * d[0].out..(r + 1) * d[0].out];
+            add(&mut gr.decoder[0].b, g1);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
                 let at = crow(c.decoder.len(), d[0].out, s);
-                add(&mut gc[2][at..at + d[0].out], &da1);
+                add(&mut gc[2][at..at + d[0].out], g1);
             }
-            u[..z].copy_from_slice(&tape.zf[r * z..(r + 1) * z]);
-            u[z..].copy_from_slice(hprev);
             du.fill(0.0);
-            back_row(&d[0].w, zh, 0, &da1, &u, &mut gr.decoder[0].w, Some(&mut du));
+            through(&d[0].w, zh, 0, g1, &mut du);
             add(&mut dhp[s * h..(s + 1) * h], &du[z..]);
-            // The latent filter.
+            // The latent filter, then the prior's draw (its noise alone at
+            // the first step).
             let filt = t > 0 && net.rho > 0.0;
+            let dp = &mut dps[r * z2..(r + 1) * z2];
             for j in 0..z {
                 let v = du[j] + czf[s * z + j];
-                dzp[j] = if filt { g_in * v } else { v };
+                let dzp = if filt { g_in * v } else { v };
                 czf[s * z + j] = if filt { net.rho * v } else { 0.0 };
-            }
-            // The prior's draw (its noise alone at the first step).
-            if t > 0 {
-                for j in 0..z {
-                    dp[j] = dzp[j];
-                    dp[z + j] = dzp[j] * sh.e[q * z + j] * dsigma(tape.sp[r * z + j]);
+                if t > 0 {
+                    dp[j] = dzp;
+                    dp[z + j] = dzp * sh.e[q * z + j] * dsigma(tape.sp[r * z + j]);
                 }
-                add(&mut gr.prior.b, &dp);
+            }
+            if t > 0 {
+                let dp = &dps[r * z2..(r + 1) * z2];
+                add(&mut gr.prior.b, dp);
                 if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
                     let at = crow(c.prior.len(), z2, s);
-                    add(&mut gc[1][at..at + z2], &dp);
+                    add(&mut gc[1][at..at + z2], dp);
                 }
-                back_row(&net.prior.w, h, 0, &dp, hprev, &mut gr.prior.w, Some(&mut dhp[s * h..(s + 1) * h]));
+                through(&net.prior.w, h, 0, dp, &mut dhp[s * h..(s + 1) * h]);
             }
             // The posterior's draw: from the real frame's features and h.
+            let de = &mut des[r * z2..(r + 1) * z2];
             for j in 0..z {
-                de[j] = dzq[j];
-                de[z + j] = dzq[j] * sh.eps[q * z + j] * dsigma(tape.sq[r * z + j]);
+                let dz = dzq[r * z + j];
+                de[j] = dz;
+                de[z + j] = dz * sh.eps[q * z + j] * dsigma(tape.sq[r * z + j]);
             }
-            add(&mut gr.encoder.b, &de);
+            let de = &des[r * z2..(r + 1) * z2];
+            add(&mut gr.encoder.b, de);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
                 let at = crow(c.pre.len(), z2 + h4, s);
-                add(&mut gc[0][at..at + z2], &de);
+                add(&mut gc[0][at..at + z2], de);
             }
-            let ft = &sh.feat[q * e2..(q + 1) * e2];
-            back_row(&net.encoder.w, enc_in, 0, &de, ft, &mut gr.encoder.w, Some(&mut gr.feat[q * e2..(q + 1) * e2]));
+            through(&net.encoder.w, enc_in, 0, de, &mut gr.feat[q * e2..(q + 1) * e2]);
             if t > 0 {
-                back_row(&net.encoder.w, enc_in, e2, &de, hprev, &mut gr.encoder.w, Some(&mut dhp[s * h..(s + 1) * h]));
+                through(&net.encoder.w, enc_in, e2, de, &mut dhp[s * h..(s + 1) * h]);
             }
         }
         std::mem::swap(&mut dh, &mut dhp);
         std::mem::swap(&mut cprev, &mut cnext);
     }
+    // The weights' gradients, each one product over all rows (`h` is zero
+    // at the first step, as are the rows of a part that did not run).
+    weight_grad(&mut gr.w_ih, gin, 0, &dgs, h4, &xin, e2);
+    weight_grad(&mut gr.w_ih, gin, e2, &dgs, h4, &tape.zq, z);
+    weight_grad(&mut gr.w_hh, h, 0, &dgs, h4, &tape.h, h);
+    weight_grad(&mut gr.phi[1].w, e1, 0, &dq2, e2, &tape.q1, e1);
+    weight_grad(&mut gr.phi[0].w, f, 0, &dq1, e1, &xf, f);
+    weight_grad(&mut gr.decoder[2].w, d[2].inp, 0, &dofs, width, &tape.a2, d[1].out);
+    weight_grad(&mut gr.decoder[1].w, d[1].inp, 0, &da2, d[1].out, &tape.a1, d[0].out);
+    weight_grad(&mut gr.decoder[0].w, zh, 0, &da1, d[0].out, &tape.zf, z);
+    weight_grad(&mut gr.decoder[0].w, zh, z, &da1, d[0].out, &tape.h, h);
+    weight_grad(&mut gr.prior.w, h, 0, &dps, z2, &tape.h, h);
+    weight_grad(&mut gr.encoder.w, enc_in, 0, &des, z2, &fr, e2);
+    weight_grad(&mut gr.encoder.w, enc_in, e2, &des, z2, &tape.h, h);
     gr
 }
 }
