@@ -64,18 +64,17 @@ fn grads(t: &Trained, x: &Tensor, eps: &Tensor, w: f64) -> ((f32, f32), Vec<Vec<
     )
     .unwrap();
     let g = g.unwrap();
-    let v = vars
-        .iter()
-        .map(|v| {
-            g.get(v)
-                .unwrap()
-                .flatten_all()
-                .unwrap()
-                .to_vec1::<f32>()
-                .unwrap()
-        })
-        .collect();
-    (l, v)
+    (l, vars.iter().map(|v| grad_of(&g, v)).collect())
+}
+
+/// The gradient of `v` in `g`, flat.
+fn grad_of(g: &candle_core::backprop::GradStore, v: &Var) -> Vec<f32> {
+    g.get(v)
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap()
 }
 
 /// The paper model gives the losses and gradients of the hand-written
@@ -144,12 +143,8 @@ fn fused_matches_reference(
     );
     assert!(((a - r) / r).abs() < 1e-5, "{name}: loss {a} vs {r}");
     let (gf, gr) = (fused.backward().unwrap(), reference.backward().unwrap());
-    let of = |g: &candle_core::backprop::GradStore, v: &Var| -> Vec<f32> {
-        let t = g.get(v).unwrap().flatten_all().unwrap();
-        t.to_vec1::<f32>().unwrap()
-    };
     for (n, v) in sorted_vars(m) {
-        let e = rel(&of(&gf, &v), &of(&gr, &v));
+        let e = rel(&grad_of(&gf, &v), &grad_of(&gr, &v));
         assert!(e < 1e-4, "{name}: {n} gradient off by {e:e}");
     }
     gf
@@ -1044,17 +1039,7 @@ fn the_fused_gradient_through_the_rollout_matches_autograd() {
             } else {
                 run()
             };
-            sorted_vars(m)
-                .iter()
-                .map(|(_, v)| {
-                    g.get(v)
-                        .unwrap()
-                        .flatten_all()
-                        .unwrap()
-                        .to_vec1::<f32>()
-                        .unwrap()
-                })
-                .collect()
+            sorted_vars(m).iter().map(|(_, v)| grad_of(&g, v)).collect()
         };
         let part = |reference: bool| -> Vec<Vec<f32>> {
             let (a, b) = (grads(&with, reference), grads(&without, reference));
