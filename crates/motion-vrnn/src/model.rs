@@ -1116,39 +1116,19 @@ impl Vrnn {
     /// pass: [`Vrnn::fed_in_sequence`]). Training calls it on detached
     /// weights, so no gradient flows through the replacement, but with
     /// [`Parts::rollout_gradient`] on its own.
-    fn fed_back(
-        &self,
-        x: &Tensor,
-        feat: &Tensor,
-        eps: &Tensor,
-        mask: &Tensor,
-        lengths: Option<&Tensor>,
-        bias: Option<&Bias>,
-    ) -> Result<Tensor> {
-        // The prior's draws at the sampling temperature where asked; the
-        // posterior's noise as is.
-        let e = self.prior_noise(eps)?;
-        let i = Feed {
-            x,
-            feat,
-            eps,
-            e: &e,
-            mask,
-            lengths,
-            bias,
-        };
+    fn fed_back(&self, i: &Feed) -> Result<Tensor> {
         if self.config.parts.rounds() == 0 {
             // A gradient through the rollout ([`Parts::rollout_gradient`])
             // takes the fused pass with its backward.
-            return match (blocks::fused(x), self.config.parts.rollout_gradient) {
-                (true, false) => self.fed_fused(&i),
-                (true, true) => self.fed_fused_grad(&i),
-                (false, _) => self.fed_in_sequence(&i),
+            return match (blocks::fused(i.x), self.config.parts.rollout_gradient) {
+                (true, false) => self.fed_fused(i),
+                (true, true) => self.fed_fused_grad(i),
+                (false, _) => self.fed_in_sequence(i),
             };
         }
-        let mut fed = self.feed_round(&i, None)?.detach();
+        let mut fed = self.feed_round(i, None)?.detach();
         for _ in 1..self.config.parts.rounds() {
-            fed = self.feed_round(&i, Some(&fed))?.detach();
+            fed = self.feed_round(i, Some(&fed))?.detach();
         }
         Ok(fed)
     }
@@ -1264,61 +1244,11 @@ impl Vrnn {
         })
     }
 
-    /// [`Vrnn::fed_in_sequence`] as one fused block ([`rollout::fed`]).
-    fn fed_fused(&self, i: &Feed) -> Result<Tensor> {
-        let (x, lengths) = (i.x, i.lengths);
-        let v = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
-        let net = self.rollout_net(lengths)?;
-        let (b, t, f) = x.dims3()?;
-        let (xv, fv, ev, pv, mv) = (v(x)?, v(i.feat)?, v(i.eps)?, v(i.e)?, v(i.mask)?);
-        let lv = lengths.map(v).transpose()?;
-        let cv = i
-            .bias
-            .map(|b| Ok::<_, candle_core::Error>((v(&b.pre)?, v(&b.prior)?, v(&b.decoder)?)))
-            .transpose()?;
-        let shard = rollout::Shard {
-            b,
-            t,
-            x: &xv,
-            feat: &fv,
-            eps: &ev,
-            e: &pv,
-            mask: &mv,
-            lengths: lv.as_deref(),
-            cond: cv.as_ref().map(|(pre, prior, decoder)| rollout::Cond {
-                pre,
-                prior,
-                decoder,
-            }),
-        };
-        Tensor::from_vec(rollout::fed(&net, &shard), (b, t, f), x.device())
-    }
-
-    /// [`Vrnn::fed_fused`] with the gradient through the fed frames
-    /// ([`rollout::RolloutOp`]): of the real frames' features, every weight
-    /// and the condition's rows.
-    fn fed_fused_grad(&self, i: &Feed) -> Result<Tensor> {
+    /// The fused pass's inputs ([`rollout::RolloutOp`]) and the
+    /// condition's rows packed as it reads them.
+    fn rollout_op(&self, i: &Feed) -> Result<(rollout::RolloutOp, Tensor)> {
         let (b, t, _) = i.x.dims3()?;
         let v = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
-        let flat = |l: &Lin| -> Result<[Tensor; 2]> { Ok([l.w.flatten_all()?, l.b.clone()]) };
-        let mut w = Vec::new();
-        for l in [
-            &self.phi_x[0],
-            &self.phi_x[1],
-            &stacked(&self.encoder[0], &self.encoder[1])?,
-            &stacked(&self.prior[0], &self.prior[1])?,
-            &self.decoder[0],
-            &self.decoder[1],
-            &self.decoder[2],
-        ] {
-            w.extend(flat(l)?);
-        }
-        w.extend([
-            self.w_ih.flatten_all()?,
-            self.w_hh.flatten_all()?,
-            (&self.b_ih + &self.b_hh)?,
-        ]);
-        let w = Tensor::cat(&w, 0)?;
         let (cond, widths) = match i.bias {
             Some(bias) => {
                 let parts = [&bias.pre, &bias.prior, &bias.decoder];
@@ -1339,7 +1269,42 @@ impl Vrnn {
             cond: widths,
             tape: std::sync::Mutex::new(None),
         };
-        i.feat.contiguous()?.apply_op3(&w, &cond.contiguous()?, op)
+        Ok((op, cond.contiguous()?))
+    }
+
+    /// [`Vrnn::fed_in_sequence`] as one fused block ([`rollout::fed`]).
+    fn fed_fused(&self, i: &Feed) -> Result<Tensor> {
+        let v = |t: &Tensor| t.flatten_all()?.to_vec1::<f32>();
+        let (op, cond) = self.rollout_op(i)?;
+        let out = op.fed(&v(i.feat)?, &v(&cond)?);
+        Tensor::from_vec(out, i.x.shape(), i.x.device())
+    }
+
+    /// [`Vrnn::fed_fused`] with the gradient through the fed frames
+    /// ([`rollout::RolloutOp`]): of the real frames' features, every weight
+    /// and the condition's rows.
+    fn fed_fused_grad(&self, i: &Feed) -> Result<Tensor> {
+        let flat = |l: &Lin| -> Result<[Tensor; 2]> { Ok([l.w.flatten_all()?, l.b.clone()]) };
+        let mut w = Vec::new();
+        for l in [
+            &self.phi_x[0],
+            &self.phi_x[1],
+            &stacked(&self.encoder[0], &self.encoder[1])?,
+            &stacked(&self.prior[0], &self.prior[1])?,
+            &self.decoder[0],
+            &self.decoder[1],
+            &self.decoder[2],
+        ] {
+            w.extend(flat(l)?);
+        }
+        w.extend([
+            self.w_ih.flatten_all()?,
+            self.w_hh.flatten_all()?,
+            (&self.b_ih + &self.b_hh)?,
+        ]);
+        let w = Tensor::cat(&w, 0)?;
+        let (op, cond) = self.rollout_op(i)?;
+        i.feat.contiguous()?.apply_op3(&w, &cond, op)
     }
 
     /// `x − o` over the pose features of a real frame `x: [B, input]` and
@@ -1393,32 +1358,35 @@ impl MotionModel for Vrnn {
             .transpose()?;
         let bias = bias.as_ref();
         let fed = match feed {
-            Some(mask) if self.config.parts.rollout_gradient => {
-                Some(self.fed_back(x, &feat, &eps, mask, lengths.as_ref(), bias)?)
-            }
             Some(mask) => {
-                let b = bias.map(Bias::detached);
-                let detached = feat.detach();
-                let own = self.detached();
-                let fed = own.fed_back(x, &detached, &eps, mask, lengths.as_ref(), b.as_ref())?;
-                match self.config.parts.last_round_gradient {
-                    // One more round on the model's own weights, reading
-                    // the frames fed back: the gradient reaches what made
-                    // each fed frame from the state before it.
-                    true => {
-                        let e = self.prior_noise(&eps)?;
-                        let i = Feed {
-                            x,
-                            feat: &feat,
-                            eps: &eps,
-                            e: &e,
-                            mask,
-                            lengths: lengths.as_ref(),
-                            bias,
-                        };
-                        Some(self.feed_round(&i, Some(&fed))?)
+                // The prior's draws at the sampling temperature where asked;
+                // the posterior's noise as is.
+                let e = self.prior_noise(&eps)?;
+                let i = Feed {
+                    x,
+                    feat: &feat,
+                    eps: &eps,
+                    e: &e,
+                    mask,
+                    lengths: lengths.as_ref(),
+                    bias,
+                };
+                if self.config.parts.rollout_gradient {
+                    Some(self.fed_back(&i)?)
+                } else {
+                    let (b, detached) = (bias.map(Bias::detached), feat.detach());
+                    let fed = self.detached().fed_back(&Feed {
+                        feat: &detached,
+                        bias: b.as_ref(),
+                        ..i
+                    })?;
+                    match self.config.parts.last_round_gradient {
+                        // One more round on the model's own weights, reading
+                        // the frames fed back: the gradient reaches what made
+                        // each fed frame from the state before it.
+                        true => Some(self.feed_round(&i, Some(&fed))?),
+                        false => Some(fed),
                     }
-                    false => Some(fed),
                 }
             }
             None => None,

@@ -754,6 +754,13 @@ impl RolloutOp {
         Some(parts)
     }
 
+    /// The fed-back frames ([`fed`]) of the real frames' features `feat`
+    /// and the condition's rows `cond` (as the op's inputs).
+    pub fn fed(&self, feat: &[f32], cond: &[f32]) -> Vec<f32> {
+        let parts = self.cond_parts(cond);
+        fed(&self.net, &self.shard(feat, parts.as_ref()))
+    }
+
     fn shard<'a>(&'a self, feat: &'a [f32], cond: Option<&'a [Vec<f32>; 3]>) -> Shard<'a> {
         Shard {
             b: self.b,
