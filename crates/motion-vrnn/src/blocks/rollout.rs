@@ -22,7 +22,7 @@
 //! against it and candle's autograd through it (`tests/models.rs`).
 
 use super::feet::{FootLockOp, Grounded, Locked};
-use super::kernels::{dsigma, mm, mm_rows, mm_small, rm, sigma, simd_fn, tr, Packed};
+use super::kernels::{dsigma, mm, mm_rows, mm_small, rm, sigma, simd_fn, tr, Packed, V};
 use super::scan::{activate, cell_rows};
 use super::skeleton::place_rows;
 
@@ -426,17 +426,53 @@ pub struct Grads {
     pub cond: Option<[Vec<f32>; 3]>,
 }
 
-/// One row back through a dense layer's input: `da += dy · W[:, from..from
-/// + k]` (`k = da.len()`). Its weights' gradients are taken over all rows
-/// at the end ([`weight_grad`]).
-#[inline(always)]
-fn through(w: &[f32], inp: usize, from: usize, dy: &[f32], da: &mut [f32]) {
-    let k = da.len();
-    for (j, &g) in dy.iter().enumerate() {
-        let at = j * inp + from;
-        for (d, &v) in da.iter_mut().zip(&w[at..at + k]) {
-            *d += g * v;
+/// The columns `from..from + k` of an `out × inp` weight matrix, for a
+/// layer's backward over the rows of a step: `da (+)= dy · W[:, from..from
+/// + k]`, packed once for every step. Its weights' gradients are taken over
+/// all rows at the end ([`weight_grad`]).
+struct Back<'a> {
+    w: &'a [f32],
+    inp: usize,
+    from: usize,
+    k: usize,
+    out: usize,
+    packed: Packed,
+}
+
+impl<'a> Back<'a> {
+    fn new(w: &'a [f32], inp: usize, from: usize, k: usize, out: usize) -> Back<'a> {
+        let packed = Packed::new(w, rm(from, inp), out, k);
+        Back {
+            w,
+            inp,
+            from,
+            k,
+            out,
+            packed,
         }
+    }
+
+    fn of(d: &'a Dense) -> Back<'a> {
+        Back::new(&d.w, d.inp, 0, d.inp, d.out)
+    }
+
+    /// `da (+)= dy · W[:, from..from + k]` over `m` rows of `dy` (`out`
+    /// wide, contiguous); `da`'s rows are `dv` (row-major, any stride).
+    #[inline(always)]
+    fn acc(&self, m: usize, da: &mut [f32], dv: V, acc: bool, dy: &[f32]) {
+        let bv = rm(self.from, self.inp);
+        let mnk = (m, self.k, self.out);
+        mm_small(
+            mnk,
+            da,
+            dv,
+            acc,
+            dy,
+            rm(0, self.out),
+            self.w,
+            bv,
+            &self.packed,
+        );
     }
 }
 
@@ -522,7 +558,10 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
     let (mut dh, mut dc, mut dhp) = (vec![0.0f32; b * h], vec![0.0f32; b * h], vec![0.0f32; b * h]);
     let (mut czf, mut cof) = (vec![0.0f32; b * z], vec![0.0f32; b * width]);
     let (mut cprev, mut cnext) = (vec![0.0f32; b * f], vec![0.0f32; b * f]);
-    let (mut dx, mut down, mut du) = (vec![0.0f32; f], vec![0.0f32; f], vec![0.0f32; zh]);
+    let mut down = vec![0.0f32; f];
+    // Per step, over its rows: the features' and the fed frames' gradients
+    // from the gates (`gx`, `dxs`), and the decoder's input's (`dus`).
+    let (mut gx, mut dxs, mut dus) = (vec![0.0f32; b * e2], vec![0.0f32; b * f], vec![0.0f32; b * zh]);
     // Each layer's output gradient per row (`t·B + s`), and the inputs the
     // tape does not hold in that order, for the weights' gradients at the
     // end: the gates (`[n, 4H]`) read the features `xin` (the fed frame's,
@@ -534,12 +573,22 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
     let (mut dq2, mut dq1, mut xf) = (rows(e2), rows(e1), rows(f));
     let (mut dofs, mut da2, mut da1) = (rows(width), rows(d[1].out), rows(d[0].out));
     let (mut dps, mut des) = (rows(z2), rows(z2));
+    // Every product of a step's backward, its weights packed once.
+    let (gates_x, gates_z) = (Back::new(&net.w_ih, gin, 0, e2, h4), Back::new(&net.w_ih, gin, e2, z, h4));
+    let gates_h = Back::new(&net.w_hh, h, 0, h, h4);
+    let phi = [Back::of(&net.phi[0]), Back::of(&net.phi[1])];
+    let dec = [Back::of(&d[0]), Back::of(&d[1]), Back::of(&d[2])];
+    let prior = Back::of(&net.prior);
+    let (enc_x, enc_h) = (Back::new(&net.encoder.w, enc_in, 0, e2, z2), Back::new(&net.encoder.w, enc_in, e2, h, z2));
+    // The rows `t·B..(t + 1)·B` of a per-row array `w` wide.
+    let step = |t: usize, w: usize| t * b * w..(t + 1) * b * w;
     for t in (0..tt).rev() {
         dhp.fill(0.0);
         cnext.fill(0.0);
+        let r0 = t * b;
+        // The cell: d h_t, d c_t → the gates' pre-activations, d c_{t−1}.
         for s in 0..b {
-            let (r, q) = (t * b + s, s * tt + t);
-            // The cell: d h_t, d c_t → the gates' pre-activations, d c_{t−1}.
+            let r = r0 + s;
             let (gt, tcr) = (&tape.g[r * h4..(r + 1) * h4], &tape.tc[r * h..(r + 1) * h]);
             let c_prev = &tape.c[r * h..(r + 1) * h];
             let dg = &mut dgs[r * h4..(r + 1) * h4];
@@ -554,42 +603,56 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 dg[3 * h + k] = dhv * tcv * og * (1.0 - og);
             }
             let dg = &dgs[r * h4..(r + 1) * h4];
-            // The gates' inputs: bias, condition, z_q, h_{t−1}, and the
-            // frame's features (the fed frame's own, or the real one's).
             add(&mut gr.b_gates, dg);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
                 let at = crow(c.pre.len(), z2 + h4, s);
                 add(&mut gc[0][at + z2..at + z2 + h4], dg);
             }
-            through(&net.w_ih, gin, e2, dg, &mut dzq[r * z..(r + 1) * z]);
-            if t > 0 {
-                through(&net.w_hh, h, 0, dg, &mut dhp[s * h..(s + 1) * h]);
-            }
-            let m = sh.mask[q];
+        }
+        // The gates' inputs: z_q, h_{t−1}, and the frame's features (the
+        // fed frame's own, or the real one's).
+        let dg = &dgs[step(t, h4)];
+        gates_z.acc(b, &mut dzq[step(t, z)], rm(0, z), false, dg);
+        if t > 0 {
+            gates_h.acc(b, &mut dhp, rm(0, h), true, dg);
+        }
+        gates_x.acc(b, &mut gx, rm(0, e2), false, dg);
+        for s in 0..b {
+            let (r, q) = (r0 + s, s * tt + t);
             let ft = &sh.feat[q * e2..(q + 1) * e2];
             fr[r * e2..(r + 1) * e2].copy_from_slice(ft);
-            dx.fill(0.0);
-            if m != 0.0 {
-                let (q1, q2) = (&tape.q1[r * e1..(r + 1) * e1], &tape.q2[r * e2..(r + 1) * e2]);
+            let g = &gx[s * e2..(s + 1) * e2];
+            if sh.mask[q] != 0.0 {
+                let q2 = &tape.q2[r * e2..(r + 1) * e2];
                 xin[r * e2..(r + 1) * e2].copy_from_slice(q2);
                 let g2 = &mut dq2[r * e2..(r + 1) * e2];
-                through(&net.w_ih, gin, 0, dg, g2);
+                g2.copy_from_slice(g);
                 relu_back(g2, q2);
                 add(&mut gr.phi[1].b, g2);
-                let g1 = &mut dq1[r * e1..(r + 1) * e1];
-                through(&net.phi[1].w, e1, 0, &dq2[r * e2..(r + 1) * e2], g1);
-                relu_back(g1, q1);
-                add(&mut gr.phi[0].b, g1);
-                through(&net.phi[0].w, f, 0, g1, &mut dx);
                 xf[r * f..(r + 1) * f].copy_from_slice(&fed[q * f..(q + 1) * f]);
             } else {
                 xin[r * e2..(r + 1) * e2].copy_from_slice(ft);
-                through(&net.w_ih, gin, 0, dg, &mut gr.feat[q * e2..(q + 1) * e2]);
+                add(&mut gr.feat[q * e2..(q + 1) * e2], g);
             }
+        }
+        // Back through φ₂ and φ₁ into the fed frames (rows not fed are zero).
+        phi[1].acc(b, &mut dq1[step(t, e1)], rm(0, e1), false, &dq2[step(t, e2)]);
+        for s in 0..b {
+            if sh.mask[s * tt + t] != 0.0 {
+                let r = r0 + s;
+                let g1 = &mut dq1[r * e1..(r + 1) * e1];
+                relu_back(g1, &tape.q1[r * e1..(r + 1) * e1]);
+                add(&mut gr.phi[0].b, g1);
+            }
+        }
+        phi[0].acc(b, &mut dxs, rm(0, f), false, &dq1[step(t, e1)]);
+        for s in 0..b {
+            let (r, q) = (r0 + s, s * tt + t);
+            let m = sh.mask[q];
             // The fed frame x + m (own − x) → the own frame, plus what the
             // next step's lock gave it.
             for k in 0..f {
-                down[k] = m * (dout[q * f + k] + dx[k]) + cprev[s * f + k];
+                down[k] = m * (dout[q * f + k] + dxs[s * f + k]) + cprev[s * f + k];
             }
             let mut dlog = [0.0f32; 2];
             if let Some(lock) = &net.lock {
@@ -614,25 +677,31 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 dof[j] = if filt { g_out * v } else { v };
                 cof[s * width + j] = if filt { net.rho_out * v } else { 0.0 };
             }
-            let dof = &dofs[r * width..(r + 1) * width];
-            // The decoder.
-            let (a1, a2) = (&tape.a1[r * d[0].out..(r + 1) * d[0].out], &tape.a2[r * d[1].out..(r + 1) * d[1].out]);
             add(&mut gr.decoder[2].b, dof);
+        }
+        // The decoder.
+        dec[2].acc(b, &mut da2[step(t, d[1].out)], rm(0, d[1].out), false, &dofs[step(t, width)]);
+        for s in 0..b {
+            let r = r0 + s;
             let g2 = &mut da2[r * d[1].out..(r + 1) * d[1].out];
-            through(&d[2].w, d[2].inp, 0, dof, g2);
-            relu_back(g2, a2);
+            relu_back(g2, &tape.a2[r * d[1].out..(r + 1) * d[1].out]);
             add(&mut gr.decoder[1].b, g2);
+        }
+        dec[1].acc(b, &mut da1[step(t, d[0].out)], rm(0, d[0].out), false, &da2[step(t, d[1].out)]);
+        for s in 0..b {
+            let r = r0 + s;
             let g1 = &mut da1[r * d[0].out..(r + 1) * d[0].out];
-            through(&d[1].w, d[1].inp, 0, &da2[r * d[1].out..(r + 1) * d[1].out], g1);
-            relu_back(g1, a1);
-            let g1 = &da1[r * d[0].out..(r + 1) * d[0].out];
+            relu_back(g1, &tape.a1[r * d[0].out..(r + 1) * d[0].out]);
             add(&mut gr.decoder[0].b, g1);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
                 let at = crow(c.decoder.len(), d[0].out, s);
                 add(&mut gc[2][at..at + d[0].out], g1);
             }
-            du.fill(0.0);
-            through(&d[0].w, zh, 0, g1, &mut du);
+        }
+        dec[0].acc(b, &mut dus, rm(0, zh), false, &da1[step(t, d[0].out)]);
+        for s in 0..b {
+            let (r, q) = (r0 + s, s * tt + t);
+            let du = &dus[s * zh..(s + 1) * zh];
             add(&mut dhp[s * h..(s + 1) * h], &du[z..]);
             // The latent filter, then the prior's draw (its noise alone at
             // the first step).
@@ -654,7 +723,6 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                     let at = crow(c.prior.len(), z2, s);
                     add(&mut gc[1][at..at + z2], dp);
                 }
-                through(&net.prior.w, h, 0, dp, &mut dhp[s * h..(s + 1) * h]);
             }
             // The posterior's draw: from the real frame's features and h.
             let de = &mut des[r * z2..(r + 1) * z2];
@@ -669,11 +737,12 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 let at = crow(c.pre.len(), z2 + h4, s);
                 add(&mut gc[0][at..at + z2], de);
             }
-            through(&net.encoder.w, enc_in, 0, de, &mut gr.feat[q * e2..(q + 1) * e2]);
-            if t > 0 {
-                through(&net.encoder.w, enc_in, e2, de, &mut dhp[s * h..(s + 1) * h]);
-            }
         }
+        if t > 0 {
+            prior.acc(b, &mut dhp, rm(0, h), true, &dps[step(t, z2)]);
+            enc_h.acc(b, &mut dhp, rm(0, h), true, &des[step(t, z2)]);
+        }
+        enc_x.acc(b, &mut gr.feat, rm(t * e2, tt * e2), true, &des[step(t, z2)]);
         std::mem::swap(&mut dh, &mut dhp);
         std::mem::swap(&mut cprev, &mut cnext);
     }
