@@ -54,7 +54,7 @@ pub struct TrainArgs {
     /// Weight of the swing loss: the prior's one-step predictions must swing as far as real frames (0: off; docs/training.md).
     #[arg(long)]
     pub swing_weight: Option<f64>,
-    /// Let the gradient flow through the fed-back frames (a step costs about 2× the default; needs --feed-rounds 0; docs/training.md).
+    /// Let the gradient flow through the fed-back frames (a step costs about 1.4× the default; needs --feed-rounds 0; docs/training.md).
     #[arg(long)]
     pub rollout_gradient: bool,
     /// After feeding back, one more round with the gradient: the rollout's gradient one level deep (docs/training.md).

@@ -141,7 +141,7 @@ pub struct Parts {
     /// ([`rollout::RolloutOp`]; the step loop [`Vrnn::fed_in_sequence`] off
     /// the CPU) instead of the fused pass on detached ones, so the losses
     /// after a fed frame reach what made it. A training step costs about
-    /// twice the default's (`docs/training.md`, "The gradient through the
+    /// 1.4× the default's (`docs/training.md`, "The gradient through the
     /// rollout"). Needs `feed_rounds` 0.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub rollout_gradient: bool,
