@@ -105,24 +105,37 @@ fn fill(dst: &mut [f32], bias: &[f32], cond: Option<(&[f32], usize)>, n: usize) 
     }
 }
 
-/// The columns `from..from + k` of an `out × inp` weight matrix as the
-/// right-hand side of a product (`k × out`), packed once for every step.
+/// Columns of an `out × inp` weight matrix `W` as the right-hand side of
+/// a product over the rows of a step, packed once for every step: `Wᵀ`'s
+/// (a layer's forward, [`Rhs::new`]) or `W`'s own (its backward,
+/// [`Rhs::back`]), `k × n` either way.
 struct Rhs<'a> {
     w: &'a [f32],
-    inp: usize,
-    from: usize,
+    bv: V,
     k: usize,
     n: usize,
     packed: Packed,
 }
 
 impl<'a> Rhs<'a> {
+    /// `W[:, from..from + k]ᵀ` (`k × out`, `n = out`): a layer's forward
+    /// from `k` of its inputs.
     fn new(w: &'a [f32], inp: usize, from: usize, k: usize, n: usize) -> Rhs<'a> {
-        let packed = Packed::new(w, tr(from, inp), k, n);
+        Rhs::view(w, tr(from, inp), k, n)
+    }
+
+    /// `W[:, from..from + n]` (`out × n`, `k = out`): a layer's backward
+    /// into `n` of its inputs (its weights' gradients are taken over all
+    /// rows at the end, [`weight_grad`]).
+    fn back(w: &'a [f32], inp: usize, from: usize, out: usize, n: usize) -> Rhs<'a> {
+        Rhs::view(w, rm(from, inp), out, n)
+    }
+
+    fn view(w: &'a [f32], bv: V, k: usize, n: usize) -> Rhs<'a> {
+        let packed = Packed::new(w, bv, k, n);
         Rhs {
             w,
-            inp,
-            from,
+            bv,
             k,
             n,
             packed,
@@ -133,12 +146,22 @@ impl<'a> Rhs<'a> {
         Rhs::new(&d.w, d.inp, 0, d.inp, d.out)
     }
 
+    fn back_of(d: &'a Dense) -> Rhs<'a> {
+        Rhs::back(&d.w, d.inp, 0, d.out, d.inp)
+    }
+
     /// `c += a · self` over `m` rows (`a` rows `k` wide, `c` rows `n`).
     #[inline(always)]
     fn acc(&self, m: usize, c: &mut [f32], a: &[f32]) {
-        let (k, n) = (self.k, self.n);
-        let (bv, p) = (tr(self.from, self.inp), &self.packed);
-        mm_small((m, n, k), c, rm(0, n), true, a, rm(0, k), self.w, bv, p);
+        self.rows(m, c, rm(0, self.n), true, a);
+    }
+
+    /// `c (+)= a · self` over `m` rows of `a` (`k` wide, contiguous); `c`'s
+    /// rows are `cv` (row-major, any stride).
+    #[inline(always)]
+    fn rows(&self, m: usize, c: &mut [f32], cv: V, acc: bool, a: &[f32]) {
+        let (k, n, p) = (self.k, self.n, &self.packed);
+        mm_small((m, n, k), c, cv, acc, a, rm(0, k), self.w, self.bv, p);
     }
 }
 
@@ -426,56 +449,6 @@ pub struct Grads {
     pub cond: Option<[Vec<f32>; 3]>,
 }
 
-/// The columns `from..from + k` of an `out × inp` weight matrix, for a
-/// layer's backward over the rows of a step: `da (+)= dy · W[:, from..from
-/// + k]`, packed once for every step. Its weights' gradients are taken over
-/// all rows at the end ([`weight_grad`]).
-struct Back<'a> {
-    w: &'a [f32],
-    inp: usize,
-    from: usize,
-    k: usize,
-    out: usize,
-    packed: Packed,
-}
-
-impl<'a> Back<'a> {
-    fn new(w: &'a [f32], inp: usize, from: usize, k: usize, out: usize) -> Back<'a> {
-        let packed = Packed::new(w, rm(from, inp), out, k);
-        Back {
-            w,
-            inp,
-            from,
-            k,
-            out,
-            packed,
-        }
-    }
-
-    fn of(d: &'a Dense) -> Back<'a> {
-        Back::new(&d.w, d.inp, 0, d.inp, d.out)
-    }
-
-    /// `da (+)= dy · W[:, from..from + k]` over `m` rows of `dy` (`out`
-    /// wide, contiguous); `da`'s rows are `dv` (row-major, any stride).
-    #[inline(always)]
-    fn acc(&self, m: usize, da: &mut [f32], dv: V, acc: bool, dy: &[f32]) {
-        let bv = rm(self.from, self.inp);
-        let mnk = (m, self.k, self.out);
-        mm_small(
-            mnk,
-            da,
-            dv,
-            acc,
-            dy,
-            rm(0, self.out),
-            self.w,
-            bv,
-            &self.packed,
-        );
-    }
-}
-
 /// `dw[:, from..from + k] += Σ_rows dyᵀ a` over `n` rows (`dy`: `n × out`,
 /// `a`: `n × k`, `dw`: `out × inp`), one product.
 fn weight_grad(
@@ -574,12 +547,12 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
     let (mut dofs, mut da2, mut da1) = (rows(width), rows(d[1].out), rows(d[0].out));
     let (mut dps, mut des) = (rows(z2), rows(z2));
     // Every product of a step's backward, its weights packed once.
-    let (gates_x, gates_z) = (Back::new(&net.w_ih, gin, 0, e2, h4), Back::new(&net.w_ih, gin, e2, z, h4));
-    let gates_h = Back::new(&net.w_hh, h, 0, h, h4);
-    let phi = [Back::of(&net.phi[0]), Back::of(&net.phi[1])];
-    let dec = [Back::of(&d[0]), Back::of(&d[1]), Back::of(&d[2])];
-    let prior = Back::of(&net.prior);
-    let (enc_x, enc_h) = (Back::new(&net.encoder.w, enc_in, 0, e2, z2), Back::new(&net.encoder.w, enc_in, e2, h, z2));
+    let (gates_x, gates_z) = (Rhs::back(&net.w_ih, gin, 0, h4, e2), Rhs::back(&net.w_ih, gin, e2, h4, z));
+    let gates_h = Rhs::back(&net.w_hh, h, 0, h4, h);
+    let phi = [Rhs::back_of(&net.phi[0]), Rhs::back_of(&net.phi[1])];
+    let dec = [Rhs::back_of(&d[0]), Rhs::back_of(&d[1]), Rhs::back_of(&d[2])];
+    let prior = Rhs::back_of(&net.prior);
+    let (enc_x, enc_h) = (Rhs::back(&net.encoder.w, enc_in, 0, z2, e2), Rhs::back(&net.encoder.w, enc_in, e2, z2, h));
     // The rows `t·B..(t + 1)·B` of a per-row array `w` wide.
     let step = |t: usize, w: usize| t * b * w..(t + 1) * b * w;
     for t in (0..tt).rev() {
@@ -612,11 +585,11 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
         // The gates' inputs: z_q, h_{t−1}, and the frame's features (the
         // fed frame's own, or the real one's).
         let dg = &dgs[step(t, h4)];
-        gates_z.acc(b, &mut dzq[step(t, z)], rm(0, z), false, dg);
+        gates_z.rows(b, &mut dzq[step(t, z)], rm(0, z), false, dg);
         if t > 0 {
-            gates_h.acc(b, &mut dhp, rm(0, h), true, dg);
+            gates_h.rows(b, &mut dhp, rm(0, h), true, dg);
         }
-        gates_x.acc(b, &mut gx, rm(0, e2), false, dg);
+        gates_x.rows(b, &mut gx, rm(0, e2), false, dg);
         for s in 0..b {
             let (r, q) = (r0 + s, s * tt + t);
             let ft = &sh.feat[q * e2..(q + 1) * e2];
@@ -636,7 +609,7 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
             }
         }
         // Back through φ₂ and φ₁ into the fed frames (rows not fed are zero).
-        phi[1].acc(b, &mut dq1[step(t, e1)], rm(0, e1), false, &dq2[step(t, e2)]);
+        phi[1].rows(b, &mut dq1[step(t, e1)], rm(0, e1), false, &dq2[step(t, e2)]);
         for s in 0..b {
             if sh.mask[s * tt + t] != 0.0 {
                 let r = r0 + s;
@@ -645,7 +618,7 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 add(&mut gr.phi[0].b, g1);
             }
         }
-        phi[0].acc(b, &mut dxs, rm(0, f), false, &dq1[step(t, e1)]);
+        phi[0].rows(b, &mut dxs, rm(0, f), false, &dq1[step(t, e1)]);
         for s in 0..b {
             let (r, q) = (r0 + s, s * tt + t);
             let m = sh.mask[q];
@@ -680,14 +653,14 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
             add(&mut gr.decoder[2].b, dof);
         }
         // The decoder.
-        dec[2].acc(b, &mut da2[step(t, d[1].out)], rm(0, d[1].out), false, &dofs[step(t, width)]);
+        dec[2].rows(b, &mut da2[step(t, d[1].out)], rm(0, d[1].out), false, &dofs[step(t, width)]);
         for s in 0..b {
             let r = r0 + s;
             let g2 = &mut da2[r * d[1].out..(r + 1) * d[1].out];
             relu_back(g2, &tape.a2[r * d[1].out..(r + 1) * d[1].out]);
             add(&mut gr.decoder[1].b, g2);
         }
-        dec[1].acc(b, &mut da1[step(t, d[0].out)], rm(0, d[0].out), false, &da2[step(t, d[1].out)]);
+        dec[1].rows(b, &mut da1[step(t, d[0].out)], rm(0, d[0].out), false, &da2[step(t, d[1].out)]);
         for s in 0..b {
             let r = r0 + s;
             let g1 = &mut da1[r * d[0].out..(r + 1) * d[0].out];
@@ -698,7 +671,7 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 add(&mut gc[2][at..at + d[0].out], g1);
             }
         }
-        dec[0].acc(b, &mut dus, rm(0, zh), false, &da1[step(t, d[0].out)]);
+        dec[0].rows(b, &mut dus, rm(0, zh), false, &da1[step(t, d[0].out)]);
         for s in 0..b {
             let (r, q) = (r0 + s, s * tt + t);
             let du = &dus[s * zh..(s + 1) * zh];
@@ -739,10 +712,10 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
             }
         }
         if t > 0 {
-            prior.acc(b, &mut dhp, rm(0, h), true, &dps[step(t, z2)]);
-            enc_h.acc(b, &mut dhp, rm(0, h), true, &des[step(t, z2)]);
+            prior.rows(b, &mut dhp, rm(0, h), true, &dps[step(t, z2)]);
+            enc_h.rows(b, &mut dhp, rm(0, h), true, &des[step(t, z2)]);
         }
-        enc_x.acc(b, &mut gr.feat, rm(t * e2, tt * e2), true, &des[step(t, z2)]);
+        enc_x.rows(b, &mut gr.feat, rm(t * e2, tt * e2), true, &des[step(t, z2)]);
         std::mem::swap(&mut dh, &mut dhp);
         std::mem::swap(&mut cprev, &mut cnext);
     }
