@@ -28,7 +28,7 @@
 
 use crate::blocks::feet::{self, ground, lock, FootLockOp, TOES};
 use crate::blocks::scan::ScanDims;
-use crate::blocks::skeleton::{bone_lengths, place, row_bone_lengths, BONES};
+use crate::blocks::skeleton::{bone_lengths, place, row_bone_lengths, PlaceOp, BONES};
 use crate::blocks::{
     self, add_rows, filter, gaussian_kl, latent_lstm, linear, lstm_cell, rollout, squared_error,
     Act,
@@ -1240,7 +1240,10 @@ impl Vrnn {
                 .map(|b| FootLockOp::new(&b.stats())),
             place: body
                 .filter(|_| c.parts.skeleton && lengths.is_some())
-                .map(|b| (b.mean.clone(), b.std.clone())),
+                .map(|b| PlaceOp {
+                    mean: b.mean.clone(),
+                    std: b.std.clone(),
+                }),
         })
     }
 

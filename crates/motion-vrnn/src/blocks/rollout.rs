@@ -24,7 +24,7 @@
 use super::feet::{FootLockOp, Grounded, Locked};
 use super::kernels::{dsigma, mm, mm_rows, mm_small, rm, sigma, simd_fn, tr, Packed, V};
 use super::scan::{activate, cell_rows};
-use super::skeleton::place_rows;
+use super::skeleton::{place_rows, PlaceOp};
 
 /// A dense layer as `nn.Linear` keeps it: `w` is `out × in`, row-major.
 #[derive(Clone, Debug)]
@@ -61,8 +61,8 @@ pub struct Net {
     pub rho_out: f32,
     /// The foot lock (None: off).
     pub lock: Option<FootLockOp>,
-    /// Feature statistics for the skeleton (None: off).
-    pub place: Option<(Vec<f32>, Vec<f32>)>,
+    /// The skeleton, with the feature statistics (None: off).
+    pub place: Option<PlaceOp>,
 }
 
 /// The condition's rows (`[n, ·]`, `n` = 1 or the batch): added to the
@@ -332,12 +332,12 @@ pub fn pass(net: &Net, sh: &Shard, tape: Option<&mut Tape>) -> Vec<f32> {
         for s in 0..b {
             own[s * f..(s + 1) * f].copy_from_slice(&of[s * width..s * width + f]);
         }
-        if let (Some((mean, std)), Some(l)) = (&net.place, sh.lengths) {
+        if let (Some(p), Some(l)) = (&net.place, sh.lengths) {
             len.clear();
             for s in 0..b {
                 len.extend_from_slice(&l[at(s) * bones..(at(s) + 1) * bones]);
             }
-            own = place_rows(&own, &len, mean, std);
+            own = place_rows(&own, &len, &p.mean, &p.std);
         }
         if let Some(lock) = &net.lock {
             for s in 0..b {
@@ -504,10 +504,6 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
     let (enc_in, gin) = (net.encoder.inp, e2 + z);
     let gain = |rho: f32| (1.0 - rho * rho).max(0.0).sqrt();
     let (g_in, g_out) = (gain(net.rho), gain(net.rho_out));
-    let place = net.place.as_ref().map(|(mean, std)| super::skeleton::PlaceOp {
-        mean: mean.clone(),
-        std: std.clone(),
-    });
     let bones = super::skeleton::BONES;
     let mut gr = Grads {
         feat: vec![0.0; b * tt * e2],
@@ -635,7 +631,7 @@ pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32
                 lock.ground_row_grad(&tape.ground[r], &mut down, &mut dlog);
             }
             let ofr = &tape.of[r * width..(r + 1) * width];
-            if let (Some(p), Some(l)) = (&place, sh.lengths) {
+            if let (Some(p), Some(l)) = (&net.place, sh.lengths) {
                 p.row_grad(&ofr[..f], &l[q * bones..(q + 1) * bones], &mut down);
             }
             // The output filter.
@@ -896,10 +892,7 @@ impl candle_core::CustomOp3 for RolloutOp {
             }
             _ => None,
         };
-        Ok((
-            Some(tensor(g.feat.clone(), feat.dims(), feat)?),
-            Some(tensor(g.weights(), w.dims(), w)?),
-            dcond,
-        ))
+        let dw = tensor(g.weights(), w.dims(), w)?;
+        Ok((Some(tensor(g.feat, feat.dims(), feat)?), Some(dw), dcond))
     }
 }

@@ -358,6 +358,7 @@ pub(crate) fn place_rows(o: &[f32], len: &[f32], mean: &[f32], std: &[f32]) -> V
 }
 
 /// The fused [`place`]: inputs `(o, lengths)`.
+#[derive(Clone, Debug)]
 pub(crate) struct PlaceOp {
     pub(crate) mean: Vec<f32>,
     pub(crate) std: Vec<f32>,
@@ -382,9 +383,7 @@ impl PlaceOp {
         }
         (y, d)
     }
-}
 
-impl PlaceOp {
     /// The backward of one row `o` with bone lengths `l`: `gr` holds the
     /// placed row's gradient and becomes `o`'s.
     #[inline(always)]
