@@ -45,10 +45,7 @@ pub struct RunArgs {
     /// Generate in runs of this many frames, each restarting on the last --context made (0: one run).
     #[arg(long)]
     pub restart: Option<usize>,
-    /// Generate this category (`walk`, `run`, …; a model trained with
-    /// `--condition category`), from training contexts of it; `own` (a
-    /// conditioned model's default): each motion the category of the window
-    /// it continues; `none`: no category.
+    /// Generate this category (`walk`, `run`, …; a model trained with `--condition category`), from training contexts of it; `own` (a conditioned model's default): each motion the category of the window it continues; `none`: no category.
     #[arg(long)]
     pub category: Option<String>,
     /// Guidance scale of --category (1: as trained; 0: none; above 1: further from the unconditioned).

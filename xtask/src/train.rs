@@ -54,6 +54,9 @@ pub struct TrainArgs {
     /// Weight of the swing loss: the prior's one-step predictions must swing as far as real frames (0: off; docs/training.md).
     #[arg(long)]
     pub swing_weight: Option<f64>,
+    /// Weight of the fed jerk loss: the frames fed back must jerk as much as real ones (0: off; needs --rollout-gradient; docs/training.md).
+    #[arg(long)]
+    pub fed_jerk_weight: Option<f64>,
     /// Let the gradient flow through the fed-back frames (a step costs about 1.4× the default; needs --feed-rounds 0; docs/training.md).
     #[arg(long)]
     pub rollout_gradient: bool,
@@ -154,9 +157,8 @@ impl TrainProgress for Bar {
 }
 
 impl Bar {
-    /// A line above the bar (or on stderr when the bar is hidden).
+    /// A line above the bar, or on stderr when the bar is hidden (no terminal: it would print nothing).
     fn println(&self, line: &str) {
-        // A hidden bar (no terminal) prints nothing: keep the log readable.
         if self.0.is_hidden() {
             eprintln!("{line}");
         } else {
@@ -194,6 +196,7 @@ impl TrainArgs {
             float_limit: self.float_limit,
             contact_speed: self.contact_speed,
             swing_weight: self.swing_weight,
+            fed_jerk_weight: self.fed_jerk_weight,
             rollout_gradient: self.rollout_gradient,
             last_round_gradient: self.last_round_gradient,
             inits: self.inits,

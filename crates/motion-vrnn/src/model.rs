@@ -197,6 +197,13 @@ pub struct Parts {
     /// deviation over the window of 8-frame means; [`swing_loss`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub swing: Option<f64>,
+    /// Weight of the fed jerk loss (None: off; needs
+    /// [`Parts::rollout_gradient`]): the frames the recurrence reads, fed
+    /// ones among them, must jerk as much as the real frames, feature by
+    /// feature ([`fed_jerk_loss`]). Through the rollout's gradient it
+    /// reaches every step that made a fed frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fed_jerk: Option<f64>,
 }
 
 /// The normalised features whose means make the pace ([`Parts::pace`]):
@@ -502,6 +509,7 @@ impl Config {
             float_limit: None,
             contact_speed: None,
             swing: None,
+            fed_jerk: None,
             rollout_gradient: false,
             last_round_gradient: false,
             ..p.clone()
@@ -756,6 +764,12 @@ impl Vrnn {
         positive("float limit", c.parts.float_limit)?;
         positive("contact speed", c.parts.contact_speed)?;
         positive("swing weight", c.parts.swing)?;
+        positive("fed jerk weight", c.parts.fed_jerk)?;
+        if c.parts.fed_jerk.is_some() && !c.parts.rollout_gradient {
+            candle_core::bail!(
+                "the fed jerk loss needs the gradient through the rollout (--rollout-gradient): without it the fed frames carry no gradient"
+            );
+        }
         if c.parts.rollout_gradient && c.parts.last_round_gradient {
             candle_core::bail!(
                 "the gradient through the rollout and through its last round are two ways of the same; choose one"
@@ -1410,6 +1424,9 @@ impl MotionModel for Vrnn {
             let still = self.config.parts.still_units();
             extra = (extra + (feet::contact_loss(l, x, &body.stats(), still)? / b)?)?;
         }
+        if let (Some(w), Some(fed), Some(mask)) = (self.config.parts.fed_jerk, &fed, feed) {
+            extra = (extra + (fed_jerk_loss(fed, x, mask)? * (w / b))?)?;
+        }
         if let Some(w) = self.config.parts.swing {
             let e = self.prior_noise(&eps)?;
             let own = self.prior_decoded(&p, &s.h, &e, lengths.as_ref(), bias)?;
@@ -1659,6 +1676,40 @@ pub fn swing_loss(own: &Tensor, x: &Tensor) -> Result<Tensor> {
     (spread(own)? - spread(&x)?)?.sqr()?.sum_all()? * t as f64
 }
 
+/// The fed jerk loss of the frames the recurrence read, `fed: [B, T, F]`
+/// (real frames where `mask: [B, T]` is 0, the model's own where it is
+/// 1), against the real `x`: per window and feature, the root mean square
+/// of the third differences over time `a[t+3] − 3 a[t+2] + 3 a[t+1] − a[t]`
+/// at the positions whose four frames hold a fed one; its squared
+/// difference from the real frames' at the same positions, summed and
+/// scaled by `T` (so it weighs like a per-frame error). Zero for a window
+/// with no fed frame.
+pub fn fed_jerk_loss(fed: &Tensor, x: &Tensor, mask: &Tensor) -> Result<Tensor> {
+    let (_, t, f) = fed.dims3()?;
+    if t < 4 {
+        return Tensor::zeros((), fed.dtype(), fed.device());
+    }
+    let n = t - 3;
+    let mut at = mask.narrow(1, 0, n)?;
+    for k in 1..4 {
+        at = at.maximum(&mask.narrow(1, k, n)?)?;
+    }
+    let at = at.unsqueeze(2)?;
+    let count = (at.sum_keepdim(1)? + 1e-6)?;
+    let rms = |a: &Tensor| -> Result<Tensor> {
+        let d = ((a.narrow(1, 3, n)? - a.narrow(1, 0, n)?)?
+            - ((a.narrow(1, 2, n)? - a.narrow(1, 1, n)?)? * 3.0)?)?;
+        let mean = d
+            .sqr()?
+            .broadcast_mul(&at)?
+            .sum_keepdim(1)?
+            .broadcast_div(&count)?;
+        (mean + 1e-6)?.sqrt()
+    };
+    let x = x.narrow(2, 0, f)?.contiguous()?;
+    (rms(fed)? - rms(&x)?)?.sqr()?.sum_all()? * t as f64
+}
+
 /// A draw from a Gaussian head's `[μ | logit σ]` (last dimension `2Z`)
 /// with noise `e`.
 fn draw(p: &Tensor, e: &Tensor, latent: usize) -> Result<Tensor> {
@@ -1720,6 +1771,42 @@ mod tests {
         // Fewer than two groups of frames: nothing to measure.
         let short = Tensor::zeros((1, 12, 1), DType::F32, &Device::Cpu).unwrap();
         assert_eq!(value(&short, &short), 0.0);
+    }
+
+    /// One fed frame of height 1 among still real ones, frame 2 of 8: the
+    /// third differences at positions 0, 1, 2 (the ones whose four frames
+    /// hold it) are −3, 3, −1; positions 3 and 4 do not count.
+    #[test]
+    fn the_fed_jerk_loss_counts_the_positions_that_hold_a_fed_frame() {
+        let dev = &Device::Cpu;
+        let one_at_2 = |len: usize| (0..len).map(|i| f32::from(i == 2)).collect::<Vec<_>>();
+        let fed = Tensor::from_vec(one_at_2(8), (1, 8, 1), dev).unwrap();
+        let mask = Tensor::from_vec(one_at_2(8), (1, 8), dev).unwrap();
+        let still = Tensor::zeros((1, 8, 1), DType::F32, dev).unwrap();
+        let value = |f: &Tensor, m: &Tensor| {
+            fed_jerk_loss(f, &still, m)
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap() as f64
+        };
+        let rms = (19.0f64 / (3.0 + 1e-6) + 1e-6).sqrt();
+        let expected = (rms - 1e-3).powi(2) * 8.0;
+        assert!((value(&fed, &mask) - expected).abs() < 1e-5 * expected);
+        // No fed frame: nothing to measure.
+        assert_eq!(
+            value(&still, &Tensor::zeros((1, 8), DType::F32, dev).unwrap()),
+            0.0
+        );
+        // Too short for a third difference.
+        let short = Tensor::zeros((1, 3, 1), DType::F32, dev).unwrap();
+        let m = Tensor::ones((1, 3), DType::F32, dev).unwrap();
+        assert_eq!(
+            fed_jerk_loss(&short, &short, &m)
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap(),
+            0.0
+        );
     }
 
     /// Statistics that leave values as they are (mean 0, std 1).

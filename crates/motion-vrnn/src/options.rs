@@ -179,6 +179,8 @@ pub struct Overrides {
     pub contact_speed: Option<f64>,
     /// Weight of the swing loss ([`crate::model::Parts::swing`]; 0: off).
     pub swing_weight: Option<f64>,
+    /// Weight of the fed jerk loss ([`crate::model::Parts::fed_jerk`]; 0: off).
+    pub fed_jerk_weight: Option<f64>,
     /// The gradient through the fed-back frames
     /// ([`crate::model::Parts::rollout_gradient`]; `true`: on).
     pub rollout_gradient: bool,
@@ -229,6 +231,9 @@ impl Overrides {
         }
         if let Some(v) = self.swing_weight {
             parts.swing = (v != 0.0).then_some(v);
+        }
+        if let Some(v) = self.fed_jerk_weight {
+            parts.fed_jerk = (v != 0.0).then_some(v);
         }
         if self.rollout_gradient {
             parts.rollout_gradient = true;

@@ -235,6 +235,9 @@ impl TrainConfig {
         if let Some(w) = self.model.parts.swing {
             s += &format!(", the swing loss weighed {w}");
         }
+        if let Some(w) = self.model.parts.fed_jerk {
+            s += &format!(", the fed jerk loss weighed {w}");
+        }
         if let Some(l) = self.model.parts.float_limit {
             s += &format!(", generated figures at most {l} units off the floor");
         }

@@ -355,6 +355,30 @@ fn the_gradient_through_the_rollout_changes_the_gradients_only() {
     assert!(init_model(&c, 5, &Device::Cpu).is_err());
 }
 
+/// The fed jerk loss (`fed_jerk`) leaves the reconstruction and KL as they
+/// are and changes the gradients (it reaches the weights through the fed
+/// frames); it needs the gradient through the rollout, and a positive
+/// weight.
+#[test]
+fn the_fed_jerk_loss_changes_the_gradients_only() {
+    let mut c = model("motion", 5).model.config().clone();
+    c.parts.feed_rounds = Some(0);
+    c.parts.rollout_gradient = true;
+    let (x, eps) = batch(3, 8, 21);
+    let with = |c: &Config, w: Option<f64>| {
+        let mut c = c.clone();
+        c.parts.fed_jerk = w;
+        init_model(&c, 5, &Device::Cpu)
+    };
+    let (a, ga) = grads(&with(&c, None).unwrap(), &x, &eps, 1.0);
+    let (b, gb) = grads(&with(&c, Some(1.0)).unwrap(), &x, &eps, 1.0);
+    assert_eq!(a, b);
+    assert!(rel(&ga.concat(), &gb.concat()) > 1e-4);
+    assert!(with(&c, Some(0.0)).is_err() && with(&c, Some(-1.0)).is_err());
+    c.parts.rollout_gradient = false;
+    assert!(with(&c, Some(1.0)).is_err());
+}
+
 /// The temperature scales the prior's noise after the real start frames and
 /// nothing else: sampling at temperature 0.5 is sampling at 1 with those
 /// steps' noise halved; it leaves the losses alone; it must be positive.
@@ -632,6 +656,7 @@ fn results_do_not_depend_on_the_thread_count() {
                 if name == "through the rollout" {
                     c.parts.rollout_gradient = true;
                     c.parts.swing = Some(1.0);
+                    c.parts.fed_jerk = Some(1.0);
                 }
                 c.parts.last_round_gradient = name == "through its last round";
                 init_model(&c, 6, &Device::Cpu).unwrap()
