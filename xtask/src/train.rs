@@ -168,39 +168,19 @@ impl Bar {
 }
 
 impl TrainArgs {
-    /// The options that replace the preset's values.
+    /// The options that replace the preset's values: each option is the
+    /// field of [`Overrides`] of the same name (a field left out, or one
+    /// `Overrides` lacks, does not compile).
     fn overrides(&self) -> Overrides {
-        Overrides {
-            latent_filter: self.latent_filter,
-            output_filter: self.output_filter,
-            feet_weight: self.feet_weight,
-            kl_weight: self.kl_weight,
-            self_feed: self.self_feed,
-            feed_rounds: self.feed_rounds,
-            temperature: self.temperature,
-            latent: self.latent,
-            epochs: self.epochs,
-            batch: self.batch,
-            lr: self.lr,
-            lr_final: self.lr_final,
-            seed: self.seed,
-            kl_warmup: self.kl_warmup,
-            clip: self.clip,
-            early_stopping: self.early_stopping,
-            select: self.select,
-            judge_every: self.judge_every,
-            judge_stretches: self.judge_stretches,
-            condition: self.condition,
-            condition_dropout: self.condition_dropout,
-            rollouts_at_temperature: self.rollouts_at_temperature,
-            float_limit: self.float_limit,
-            contact_speed: self.contact_speed,
-            swing_weight: self.swing_weight,
-            fed_jerk_weight: self.fed_jerk_weight,
-            rollout_gradient: self.rollout_gradient,
-            last_round_gradient: self.last_round_gradient,
-            inits: self.inits,
-            feed_run: self.feed_run,
+        macro_rules! same_names {
+            ($($f:ident)*) => { Overrides { $($f: self.$f),* } };
+        }
+        same_names! {
+            latent_filter output_filter feet_weight kl_weight self_feed feed_rounds temperature
+            latent epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
+            judge_stretches condition condition_dropout rollouts_at_temperature float_limit
+            contact_speed swing_weight fed_jerk_weight rollout_gradient last_round_gradient inits
+            feed_run
         }
     }
 }
