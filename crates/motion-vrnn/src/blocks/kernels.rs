@@ -268,9 +268,10 @@ enum Start<'a> {
 }
 
 /// The kernel of [`mm_small`] and [`mm_rows`]: tiles of 4 rows by 16
-/// columns (then 8, then single columns), each element summed as `gemm`'s
-/// FMA kernel sums it: from zero, one fused multiply-add per step of the
-/// inner dimension in order, then added to its start.
+/// columns (then 8, then the last 1–7 under a mask: one at a time they
+/// cost the decoder's 60-wide output twice its time), each element summed
+/// as `gemm`'s FMA kernel sums it: from zero, one fused multiply-add per
+/// step of the inner dimension in order, then added to its start.
 ///
 /// # Safety
 /// The CPU has AVX2 and FMA; `a` points at `m` rows of `k` values `a_rs`
@@ -289,8 +290,8 @@ unsafe fn fma_rows(
 ) {
     let bp = b.as_ptr();
     let mut q = 0;
-    while q + 8 <= n {
-        let wide = n - q >= 16;
+    while q < n {
+        let (wide, width) = (n - q >= 16, (n - q).min(8));
         let mut r = 0;
         while r < m {
             let rows = if m - r >= 4 { 4 } else { 1 };
@@ -299,29 +300,17 @@ unsafe fn fma_rows(
                 Start::Bias(v) => Start::Bias(&v[q..]),
                 s => s,
             };
-            match (rows, wide) {
-                (4, true) => tile::<4, 2>(k, at, a_rs, bt, n, ct, c_rs, st),
-                (4, false) => tile::<4, 1>(k, at, a_rs, bt, n, ct, c_rs, st),
-                (_, true) => tile::<1, 2>(k, at, a_rs, bt, n, ct, c_rs, st),
-                (_, false) => tile::<1, 1>(k, at, a_rs, bt, n, ct, c_rs, st),
+            match (rows, wide, width) {
+                (4, true, _) => tile::<4, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
+                (4, false, 8) => tile::<4, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
+                (4, false, w) => tile::<4, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
+                (_, true, _) => tile::<1, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
+                (_, false, 8) => tile::<1, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
+                (_, false, w) => tile::<1, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
             }
             r += rows;
         }
-        q += if wide { 16 } else { 8 };
-    }
-    for q in q..n {
-        for r in 0..m {
-            let mut sum = 0.0f32;
-            for i in 0..k {
-                sum = (*a.add(r * a_rs + i)).mul_add(*bp.add(i * n + q), sum);
-            }
-            let p = c.add(r * c_rs + q);
-            *p = match start {
-                Start::Zero => sum,
-                Start::Dst => *p + sum,
-                Start::Bias(v) => v[q] + sum,
-            };
-        }
+        q += if wide { 16 } else { width };
     }
 }
 
@@ -344,7 +333,7 @@ unsafe fn fma_rows(
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
 #[inline]
-unsafe fn tile<const R: usize, const C: usize>(
+unsafe fn tile<const R: usize, const C: usize, const MASK: bool>(
     k: usize,
     a: *const f32,
     a_rs: usize,
@@ -353,13 +342,27 @@ unsafe fn tile<const R: usize, const C: usize>(
     c: *mut f32,
     c_rs: usize,
     start: Start,
+    width: usize,
 ) {
     use std::arch::x86_64::*;
+    // With `MASK`, the first `width` columns only (C = 1): lanes past them
+    // are neither read nor written.
+    let mask = _mm256_cmpgt_epi32(
+        _mm256_set1_epi32(width as i32),
+        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+    );
+    let load = |p: *const f32| {
+        if MASK {
+            _mm256_maskload_ps(p, mask)
+        } else {
+            _mm256_loadu_ps(p)
+        }
+    };
     let mut sum = [[_mm256_setzero_ps(); C]; R];
     for i in 0..k {
         let mut bv = [_mm256_setzero_ps(); C];
         for (j, v) in bv.iter_mut().enumerate() {
-            *v = _mm256_loadu_ps(b.add(i * b_rs + 8 * j));
+            *v = load(b.add(i * b_rs + 8 * j));
         }
         for (row, s) in sum.iter_mut().enumerate() {
             let x = _mm256_set1_ps(*a.add(row * a_rs + i));
@@ -373,10 +376,14 @@ unsafe fn tile<const R: usize, const C: usize>(
             let p = c.add(row * c_rs + 8 * j);
             let v = match start {
                 Start::Zero => *s,
-                Start::Dst => _mm256_add_ps(_mm256_loadu_ps(p), *s),
-                Start::Bias(v) => _mm256_add_ps(_mm256_loadu_ps(v.as_ptr().add(8 * j)), *s),
+                Start::Dst => _mm256_add_ps(load(p), *s),
+                Start::Bias(v) => _mm256_add_ps(load(v.as_ptr().add(8 * j)), *s),
             };
-            _mm256_storeu_ps(p, v);
+            if MASK {
+                _mm256_maskstore_ps(p, mask, v);
+            } else {
+                _mm256_storeu_ps(p, v);
+            }
         }
     }
 }
@@ -576,6 +583,10 @@ mod tests {
             (4096, 60, 48, true),
             (4096, 40, 32, false),
             (101, 20, 33, true),
+            // Last columns under a mask: 1, 2 and 7 of them.
+            (5, 9, 7, false),
+            (13, 58, 48, true),
+            (6, 63, 20, false),
         ];
         for (m, n, k, trans) in shapes {
             for acc in [false, true] {
