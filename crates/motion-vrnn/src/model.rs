@@ -1685,7 +1685,7 @@ pub fn swing_loss(own: &Tensor, x: &Tensor) -> Result<Tensor> {
 /// scaled by `T` (so it weighs like a per-frame error). Zero for a window
 /// with no fed frame.
 pub fn fed_jerk_loss(fed: &Tensor, x: &Tensor, mask: &Tensor) -> Result<Tensor> {
-    let (_, t, f) = fed.dims3()?;
+    let (_, t, _) = fed.dims3()?;
     if t < 4 {
         return Tensor::zeros((), fed.dtype(), fed.device());
     }
@@ -1706,8 +1706,7 @@ pub fn fed_jerk_loss(fed: &Tensor, x: &Tensor, mask: &Tensor) -> Result<Tensor> 
             .broadcast_div(&count)?;
         (mean + 1e-6)?.sqrt()
     };
-    let x = x.narrow(2, 0, f)?.contiguous()?;
-    (rms(fed)? - rms(&x)?)?.sqr()?.sum_all()? * t as f64
+    (rms(fed)? - rms(x)?)?.sqr()?.sum_all()? * t as f64
 }
 
 /// A draw from a Gaussian head's `[μ | logit σ]` (last dimension `2Z`)
