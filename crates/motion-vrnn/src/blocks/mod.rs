@@ -31,7 +31,7 @@ use std::cell::Cell;
 
 pub mod feet;
 pub mod filter;
-mod kernels;
+pub(crate) mod kernels;
 pub mod kl;
 pub mod linear;
 pub(crate) mod rollout;
