@@ -101,7 +101,7 @@ simd_fn! {
 /// 2⁻⁵³). Their product `y` is then within `e = (r + |y|)·2⁻⁴⁶` of libm's
 /// product, a bound a hundred times wider than the error. Where `y − e` and
 /// `y + e` round to the same `f32`, so does libm's product (rounding is
-/// monotonic) and `y` is used; elsewhere, about one value in a million
+/// monotonic) and `y` is used; elsewhere, about 4 values in a million
 /// (within `e` of the midpoint between two `f32`s, or `y = 0`, whose sign
 /// matters), libm's `box_muller` computes it. Tested against `box_muller`
 /// on tens of millions of draws and on the edges of both ranges.
