@@ -99,12 +99,12 @@ simd_fn! {
 /// `ln` and `cos` come from polynomials ([`ln_near`], [`cos_near`]), each
 /// within about 2⁻⁵⁰ of libm's result (libm's own error is under one ulp,
 /// 2⁻⁵³). Their product `y` is then within `e = (r + |y|)·2⁻⁴⁶` of libm's
-/// product, a bound a hundred times wider than the error. Where `y − e` and
+/// product, a bound over twenty times the error. Where `y − e` and
 /// `y + e` round to the same `f32`, so does libm's product (rounding is
 /// monotonic) and `y` is used; elsewhere, about 4 values in a million
 /// (within `e` of the midpoint between two `f32`s, or `y = 0`, whose sign
 /// matters), libm's `box_muller` computes it. Tested against `box_muller`
-/// on tens of millions of draws and on the edges of both ranges.
+/// on 2²⁴ draws and on the edges of both ranges.
 fn box_muller_f32(u1: &[f64], u2: &[f64], out: &mut [f32]) -> () {
     let (mut a, mut b) = ([1.0; LANES], [0.0; LANES]);
     let (mut y, mut ok) = ([0.0f32; LANES], [false; LANES]);
