@@ -210,6 +210,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
             cfg.epochs,
             cfg.adam.lr
         );
+        if device.is_cuda() {
+            eprintln!("note: these small recurrent models train several times faster on the CPU (docs/training.md, \"GPU\"); `CUDA_VISIBLE_DEVICES= cargo xtask train …` runs there");
+        }
     }
     let bar = if a.quiet {
         ProgressBar::hidden()
