@@ -267,7 +267,8 @@ enum Start<'a> {
     Bias(&'a [f32]),
 }
 
-/// The kernel of [`mm_small`] and [`mm_rows`]: tiles of 4 rows by 16
+/// The kernel of [`mm_small`] and [`mm_rows`]: tiles of 6 rows (12
+/// accumulators, as `gemm`'s kernel; then 4, 2, 1 for the last rows) by 16
 /// columns (then 8, then the last 1–7 under a mask: one at a time they
 /// cost the decoder's 60-wide output twice its time), each element summed
 /// as `gemm`'s FMA kernel sums it: from zero, one fused multiply-add per
@@ -294,16 +295,27 @@ unsafe fn fma_rows(
         let (wide, width) = (n - q >= 16, (n - q).min(8));
         let mut r = 0;
         while r < m {
-            let rows = if m - r >= 4 { 4 } else { 1 };
+            let rows = match m - r {
+                6.. => 6,
+                4 | 5 => 4,
+                2 | 3 => 2,
+                _ => 1,
+            };
             let (ct, at, bt) = (c.add(r * c_rs + q), a.add(r * a_rs), bp.add(q));
             let st = match start {
                 Start::Bias(v) => Start::Bias(&v[q..]),
                 s => s,
             };
             match (rows, wide, width) {
+                (6, true, _) => tile::<6, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
+                (6, false, 8) => tile::<6, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
+                (6, false, w) => tile::<6, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
                 (4, true, _) => tile::<4, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
                 (4, false, 8) => tile::<4, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
                 (4, false, w) => tile::<4, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
+                (2, true, _) => tile::<2, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
+                (2, false, 8) => tile::<2, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
+                (2, false, w) => tile::<2, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
                 (_, true, _) => tile::<1, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
                 (_, false, 8) => tile::<1, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
                 (_, false, w) => tile::<1, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
