@@ -306,19 +306,12 @@ unsafe fn fma_rows(
                 Start::Bias(v) => Start::Bias(&v[q..]),
                 s => s,
             };
-            match (rows, wide, width) {
-                (6, true, _) => tile::<6, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
-                (6, false, 8) => tile::<6, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
-                (6, false, w) => tile::<6, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
-                (4, true, _) => tile::<4, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
-                (4, false, 8) => tile::<4, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
-                (4, false, w) => tile::<4, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
-                (2, true, _) => tile::<2, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
-                (2, false, 8) => tile::<2, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
-                (2, false, w) => tile::<2, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
-                (_, true, _) => tile::<1, 2, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
-                (_, false, 8) => tile::<1, 1, false>(k, at, a_rs, bt, n, ct, c_rs, st, 8),
-                (_, false, w) => tile::<1, 1, true>(k, at, a_rs, bt, n, ct, c_rs, st, w),
+            let cols = (wide, width);
+            match rows {
+                6 => tile_of::<6>(cols, k, at, a_rs, bt, n, ct, c_rs, st),
+                4 => tile_of::<4>(cols, k, at, a_rs, bt, n, ct, c_rs, st),
+                2 => tile_of::<2>(cols, k, at, a_rs, bt, n, ct, c_rs, st),
+                _ => tile_of::<1>(cols, k, at, a_rs, bt, n, ct, c_rs, st),
             }
             r += rows;
         }
@@ -338,6 +331,30 @@ unsafe fn fma_rows(
     _: Start,
 ) {
     unreachable!("fma_rows runs only where fast_rows holds (x86-64)")
+}
+
+/// `R` rows of [`fma_rows`]' column block: 16 columns if `wide`, else the
+/// `width` (1–8) left, the last 1–7 under a mask.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+#[inline]
+unsafe fn tile_of<const R: usize>(
+    (wide, width): (bool, usize),
+    k: usize,
+    a: *const f32,
+    a_rs: usize,
+    b: *const f32,
+    b_rs: usize,
+    c: *mut f32,
+    c_rs: usize,
+    start: Start,
+) {
+    match (wide, width) {
+        (true, _) => tile::<R, 2, false>(k, a, a_rs, b, b_rs, c, c_rs, start, 8),
+        (false, 8) => tile::<R, 1, false>(k, a, a_rs, b, b_rs, c, c_rs, start, 8),
+        (false, w) => tile::<R, 1, true>(k, a, a_rs, b, b_rs, c, c_rs, start, w),
+    }
 }
 
 /// `R` rows by `8·C` columns of [`fma_rows`].
