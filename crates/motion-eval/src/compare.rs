@@ -4,8 +4,8 @@
 
 use crate::asked::{AskedModel, STANDARD_ASKED};
 use crate::horizon::{
-    misses, pose_spread_range, pose_spread_ratio, tally, Horizon, HorizonOptions,
-    MEASURES as HORIZON_MEASURES,
+    frechet_draws_range, misses, pose_spread_range, pose_spread_ratio, tally, Horizon,
+    HorizonOptions, MEASURES as HORIZON_MEASURES,
 };
 pub use crate::mean_std;
 use crate::report::{report, Contexts, EvalReport};
@@ -631,7 +631,8 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
          each to its own start and measures it against all {} real windows of the dataset (generated ÷ real; \
          Fréchet against the test windows, reference {:.1}). The first stretch is the 4-second motion from \
          training contexts, the last ends the minute. Mean ± std over the seeds; the first row gives the range \
-         of each ratio for draws of real windows of the same size. Pose spread: how widely the stretches' \
+         of each ratio for draws of real windows of the same size, and of the Fréchet distance for draws of as \
+         many training windows. Pose spread: how widely the stretches' \
          average poses differ across motions, ÷ real (a diagnostic of the Fréchet distance, \
          [metrics.md](metrics.md)). In the air: the share of frames with no joint within 5 cm of the floor, \
          in % (the real windows' in the first row).\n\n| model, stretch |",
@@ -648,8 +649,9 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
     }
     let _ = writeln!(
         s,
-        " | real {:.1} | | {} |",
+        " | real {:.1} | {} | {} |",
         100.0 * h0.real.airborne_share,
+        frechet_draws_range(h0),
         pose_spread_range(h0)
     );
     let horizons = |runs: &[SeedRun]| -> Vec<Horizon> {

@@ -79,6 +79,22 @@ pub struct PoseSpread {
     pub hi: f64,
 }
 
+/// Fréchet distances to the evaluated split of [`REAL_DRAWS`] draws
+/// (without replacement) of as many training windows as there are motions
+/// (at most half of them): what real motion scores at the generated set's
+/// size, beside [`Horizon::frechet_reference`] (all training windows).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FrechetDraws {
+    /// Training windows a draw holds.
+    pub windows: usize,
+    /// Smallest distance over the draws.
+    pub lo: f64,
+    /// Mean over the draws.
+    pub mean: f64,
+    /// Largest.
+    pub hi: f64,
+}
+
 /// The long-horizon evaluation (`eval.json`'s `horizon`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Horizon {
@@ -103,6 +119,10 @@ pub struct Horizon {
     /// before it).
     #[serde(default)]
     pub real_pose_spread: Option<PoseSpread>,
+    /// The Fréchet distance that real training windows give at the
+    /// generated set's size (absent in reports written before it).
+    #[serde(default)]
+    pub frechet_draws: Option<FrechetDraws>,
     /// The stretches, in order.
     pub stretches: Vec<Stretch>,
 }
@@ -128,6 +148,7 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
     let gen = m.sample(o.motions, stretches * len, spec.context, spec.seed)?;
     let opts = Options::default();
     let test_summaries = generate::summaries(&generate::windows_of(test), NUM_FEATURES);
+    let train_summaries = generate::summaries(&generate::windows_of(train), NUM_FEATURES);
     let per = len * NUM_FEATURES;
     // Each stretch alone (on rayon's threads, collected in order).
     let out: Vec<Stretch> = (0..stretches)
@@ -199,12 +220,46 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
         real_windows: real.len(),
         real: all,
         real_spread,
-        frechet_reference: motion_metrics::frechet(
-            &test_summaries,
-            &generate::summaries(&generate::windows_of(train), NUM_FEATURES),
-        ),
+        frechet_reference: motion_metrics::frechet(&test_summaries, &train_summaries),
         real_pose_spread: Some(real_pose_spread),
+        frechet_draws: frechet_draws(&test_summaries, &train_summaries, o.motions, spec.seed),
         stretches: out,
+    })
+}
+
+/// [`FrechetDraws`] of `train` summaries against `split`'s, drawn with
+/// `seed`; None where there are too few training windows to draw from.
+fn frechet_draws(
+    split: &[Vec<f64>],
+    train: &[Vec<f64>],
+    motions: usize,
+    seed: u64,
+) -> Option<FrechetDraws> {
+    let windows = motions.min(train.len() / 2);
+    if windows < 2 {
+        return None;
+    }
+    let d: Vec<f64> = (0..REAL_DRAWS as u64)
+        .into_par_iter()
+        .map(|d| {
+            let perm = motion_vrnn::rng::Rng::new(seed, 0xF7EC + d).permutation(train.len());
+            let pick: Vec<Vec<f64>> = perm[..windows].iter().map(|&i| train[i].clone()).collect();
+            motion_metrics::frechet(split, &pick)
+        })
+        .collect();
+    Some(FrechetDraws {
+        windows,
+        lo: d.iter().copied().fold(f64::INFINITY, f64::min),
+        mean: d.iter().sum::<f64>() / d.len() as f64,
+        hi: d.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+    })
+}
+
+/// The real-vs-real cell of the Fréchet column: the range of
+/// [`Horizon::frechet_draws`] (empty in a report written before it).
+pub fn frechet_draws_range(h: &Horizon) -> String {
+    h.frechet_draws.as_ref().map_or(String::new(), |f| {
+        format!("{} train: {:.1}–{:.1}", f.windows, f.lo, f.hi)
     })
 }
 
@@ -280,7 +335,8 @@ pub fn markdown(h: &Horizon) -> String {
          Each {}-frame stretch re-based to its own start and measured against all {} real windows \
          of the dataset (generated ÷ real); under each measure, the range of the same ratio for \
          {REAL_DRAWS} draws of {} real windows. Fréchet: against the evaluated split \
-         (train-vs-split reference {:.1}). Bone cv in %. Pose spread: how widely the stretches' average \
+         (train-vs-split reference {:.1}; under it, the range for {REAL_DRAWS} draws of as many training \
+         windows). Bone cv in %. Pose spread: how widely the stretches' average \
          poses differ across motions (`docs/metrics.md`), a diagnostic of the Fréchet distance, not a \
          band; stride (how far the toes swing past each other, generated ÷ real) a diagnostic too.\n\n| stretch |",
         h.motions,
@@ -302,9 +358,10 @@ pub fn markdown(h: &Horizon) -> String {
         s += &format!(" {:.2}–{:.2} |", sp.lo, sp.hi);
     }
     s += &format!(
-        " | real {:.1} | real {:.2} m | | {} |\n",
+        " | real {:.1} | real {:.2} m | {} | {} |\n",
         100.0 * h.real.airborne_share,
         h.real.stride_m,
+        frechet_draws_range(h),
         pose_spread_range(h)
     );
     for st in &h.stretches {
@@ -403,6 +460,7 @@ mod tests {
             real_spread: Vec::new(),
             frechet_reference: 70.0,
             real_pose_spread: None,
+            frechet_draws: None,
             stretches: vec![Stretch {
                 start_s: 0.0,
                 generated: stretch,
@@ -410,6 +468,23 @@ mod tests {
                 pose_spread: None,
             }],
         }
+    }
+
+    #[test]
+    fn frechet_draws_are_real_windows_at_the_generated_size() {
+        // Constant summaries: every draw is 3-4-5 away (no covariance).
+        let split = vec![vec![3.0, 4.0]; 6];
+        let train = vec![vec![0.0, 0.0]; 10];
+        let f = frechet_draws(&split, &train, 256, 0).expect("10 windows to draw from");
+        assert_eq!(f.windows, 5, "at most half the training windows");
+        for v in [f.lo, f.mean, f.hi] {
+            assert!((v - 25.0).abs() < 1e-9, "{v}");
+        }
+        assert!(frechet_draws(&split, &train[..3], 256, 0).is_none());
+        let mut h = horizon(stats(1.0), 60.0);
+        assert_eq!(frechet_draws_range(&h), "");
+        h.frechet_draws = Some(f);
+        assert_eq!(frechet_draws_range(&h), "5 train: 25.0–25.0");
     }
 
     #[test]
