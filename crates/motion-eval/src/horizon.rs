@@ -196,20 +196,20 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
             )
         })
         .collect();
-    let pose_ratios = draws.iter().map(|d| d.1 / all_pose_spread);
+    let (lo, hi) = lo_hi(draws.iter().map(|d| d.1 / all_pose_spread));
     let real_pose_spread = PoseSpread {
         all: all_pose_spread,
-        lo: pose_ratios.clone().fold(f64::INFINITY, f64::min),
-        hi: pose_ratios.fold(f64::NEG_INFINITY, f64::max),
+        lo,
+        hi,
     };
     let real_spread = MEASURES
         .iter()
         .map(|(name, f)| {
-            let ratios: Vec<f64> = draws.iter().map(|d| f(&d.0) / f(&all)).collect();
+            let (lo, hi) = lo_hi(draws.iter().map(|d| f(&d.0) / f(&all)));
             Spread {
                 measure: name.to_string(),
-                lo: ratios.iter().copied().fold(f64::INFINITY, f64::min),
-                hi: ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                lo,
+                hi,
             }
         })
         .collect();
@@ -247,11 +247,19 @@ fn frechet_draws(
             motion_metrics::frechet(split, &pick)
         })
         .collect();
+    let (lo, hi) = lo_hi(d.iter().copied());
     Some(FrechetDraws {
         windows,
-        lo: d.iter().copied().fold(f64::INFINITY, f64::min),
+        lo,
         mean: d.iter().sum::<f64>() / d.len() as f64,
-        hi: d.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        hi,
+    })
+}
+
+/// Smallest and largest of `xs` (∞ and −∞ when empty).
+fn lo_hi(xs: impl Iterator<Item = f64>) -> (f64, f64) {
+    xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+        (lo.min(x), hi.max(x))
     })
 }
 
