@@ -142,6 +142,22 @@ impl Asked {
     }
 }
 
+/// How far the categories asked for keep the differences their real
+/// windows have in one measure ([`motion_metrics::slope`] over the
+/// categories of the goals, `docs/metrics.md`, "Categories kept apart"):
+/// 1, as far apart as real ones; 0, every category alike.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Separation {
+    /// Slope of the motions asked for on the real windows, category by
+    /// category.
+    pub asked: f64,
+    /// The same for the contexts continued without a category.
+    pub unasked: f64,
+    /// Smallest and largest slope of the [`REAL_DRAWS`] draws of half of
+    /// each category's real windows on all of them.
+    pub real: (f64, f64),
+}
+
 /// Every category asked for (`eval.json`'s `classifier.asked`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AskedSet {
@@ -170,6 +186,13 @@ pub struct AskedSet {
     /// motion asked for to the test windows, and of the training windows
     /// to them (the reference).
     pub frechet_summaries: (f64, f64),
+    /// How far apart the categories' hips speeds are kept (None below two
+    /// categories in the goals, and in reports written before it).
+    #[serde(default)]
+    pub speed_separation: Option<Separation>,
+    /// The same for the stride.
+    #[serde(default)]
+    pub stride_separation: Option<Separation>,
 }
 
 /// Every real window of the run's splits (in [`crate::horizon::SPLITS`]
@@ -255,8 +278,8 @@ pub fn ask_each(
             .get(split)
             .map_or(0, |l| l.iter().filter(|&&x| x == c).count())
     };
-    let (mut out, mut all_gen, mut all_feat, mut all_labels) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut out, mut all_gen, mut all_feat, mut all_labels, mut draws) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for (row, name) in config.categories.iter().enumerate() {
         let cat: Category = name.parse().map_err(EvalError::Invalid)?;
         // Contexts of the category, asked for it at `guidance` (0: none).
@@ -285,7 +308,7 @@ pub fn ask_each(
         let gen_poses: Vec<Vec<Pose>> = gen.iter().map(global).collect();
         let un_poses: Vec<Vec<Pose>> = unasked.iter().map(global).collect();
         let missing = || EvalError::Invalid(format!("no windows of {cat}"));
-        let sp = spread(&real, spec.seed);
+        let d = spread(&real, spec.seed);
         out.push(Asked {
             category: cat.name().to_string(),
             train_windows: count("train", cat),
@@ -299,13 +322,21 @@ pub fn ask_each(
             real: plain(&real).ok_or_else(missing)?,
             generated: plain(&gen_poses).ok_or_else(missing)?,
             unasked: plain(&un_poses).ok_or_else(missing)?,
-            real_spread: [sp[0], sp[1]],
-            stride_spread: Some(sp[2]),
+            real_spread: [d.ranges[0], d.ranges[1]],
+            stride_spread: Some(d.ranges[2]),
         });
+        draws.push(d);
         all_labels.extend(std::iter::repeat_n(cat, gen.len()));
         all_feat.extend(go.features);
         all_gen.extend(gen);
     }
+    let kept: Vec<(&Asked, &Draws)> = out
+        .iter()
+        .zip(&draws)
+        .filter(|(a, _)| a.in_goals())
+        .collect();
+    let speed_separation = separation(&kept, |p| p.speed_m_s, |d| &d.speed);
+    let stride_separation = separation(&kept, |p| p.stride_m, |d| &d.stride);
     let test_all = seen
         .split(&spec.split)
         .map_or(Vec::new(), |s| s.1.features.clone());
@@ -331,17 +362,68 @@ pub fn ask_each(
             motion_metrics::frechet(&test_s, &summaries(&all_gen)),
             motion_metrics::frechet(&test_s, &summaries(&generate::windows_of(train))),
         ),
+        speed_separation,
+        stride_separation,
     }))
 }
 
-/// Ratios of hips speed, contact share and stride of [`REAL_DRAWS`] draws
-/// of half of `real` to all of it: smallest and largest of each.
-fn spread(real: &[Vec<Pose>], seed: u64) -> [(f64, f64); 3] {
+/// [`Separation`] of the categories `kept` (each with its real windows'
+/// draws) in the measure `f`, `of` giving each draw's value of it; None
+/// below two categories or where their real values are all the same.
+fn separation(
+    kept: &[(&Asked, &Draws)],
+    f: fn(&Plain) -> f64,
+    of: fn(&Draws) -> &[f64],
+) -> Option<Separation> {
+    use motion_metrics::slope;
+    let over = |g: &dyn Fn(&Asked, &Draws) -> f64| {
+        slope(
+            &kept
+                .iter()
+                .map(|(a, d)| (f(&a.real), g(a, d)))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let draws = kept.iter().map(|(_, d)| of(d).len()).min().unwrap_or(0);
+    let real = (0..draws)
+        .map(|k| over(&|_, d| of(d)[k]))
+        .collect::<Option<Vec<f64>>>()?;
+    let lo_hi = real
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+            (lo.min(v), hi.max(v))
+        });
+    Some(Separation {
+        asked: over(&|a, _| f(&a.generated))?,
+        unasked: over(&|a, _| f(&a.unasked))?,
+        real: (!real.is_empty()).then_some(lo_hi)?,
+    })
+}
+
+/// What [`spread`] draws of a category's real windows.
+struct Draws {
+    /// Smallest and largest ratio of hips speed, contact share and stride
+    /// of a draw to all of them.
+    ranges: [(f64, f64); 3],
+    /// Each draw's hips speed, m/s.
+    speed: Vec<f64>,
+    /// Each draw's stride, m.
+    stride: Vec<f64>,
+}
+
+/// [`REAL_DRAWS`] draws of half of `real`: the ratios of their hips speed,
+/// contact share and stride to all of it (smallest and largest of each),
+/// and their hips speeds and strides.
+fn spread(real: &[Vec<Pose>], seed: u64) -> Draws {
     let opts = Options::default();
     let all = motion_stats(real, &opts);
     let k = (real.len() / 2).max(1);
     let mut rng = motion_vrnn::rng::Rng::new(seed, 0x5B2E);
-    let mut out = [(f64::INFINITY, f64::NEG_INFINITY); 3];
+    let mut out = Draws {
+        ranges: [(f64::INFINITY, f64::NEG_INFINITY); 3],
+        speed: Vec::with_capacity(REAL_DRAWS),
+        stride: Vec::with_capacity(REAL_DRAWS),
+    };
     for _ in 0..REAL_DRAWS {
         let pick: Vec<Vec<Pose>> = rng
             .permutation(real.len())
@@ -350,7 +432,9 @@ fn spread(real: &[Vec<Pose>], seed: u64) -> [(f64, f64); 3] {
             .map(|i| real[i].clone())
             .collect();
         let s = motion_stats(&pick, &opts);
-        for (o, (g, r)) in out.iter_mut().zip([
+        out.speed.push(s.root_speed_m_s);
+        out.stride.push(s.stride_m);
+        for (o, (g, r)) in out.ranges.iter_mut().zip([
             (s.root_speed_m_s, all.root_speed_m_s),
             (s.contact_share, all.contact_share),
             (s.stride_m, all.stride_m),
@@ -380,6 +464,40 @@ pub(crate) fn as_windows(
 /// where there is none (the stride's, in reports written before it).
 fn bracket(r: Option<(f64, f64)>) -> String {
     r.map_or(String::new(), |(lo, hi)| format!("[{lo:.2}–{hi:.2}]"))
+}
+
+/// The sentence on the categories kept apart ([`Separation`]): for the hips
+/// speed and the stride, the asked and unasked slopes as `text` makes them
+/// of the runs' separations (`pick` takes one from a run's set) and the
+/// real-vs-real range of the first; empty where a run has none.
+fn separation_line(sets: &[&AskedSet], text: &dyn Fn(&[f64]) -> String) -> String {
+    type Pick = fn(&AskedSet) -> Option<Separation>;
+    let measures: [(&str, Pick); 2] = [
+        ("hips speed", |a| a.speed_separation),
+        ("stride", |a| a.stride_separation),
+    ];
+    let mut parts = Vec::new();
+    for (name, pick) in measures {
+        let Some(each) = sets.iter().map(|a| pick(a)).collect::<Option<Vec<_>>>() else {
+            return String::new();
+        };
+        let Some(first) = each.first() else {
+            return String::new();
+        };
+        let of = |f: fn(&Separation) -> f64| text(&each.iter().map(f).collect::<Vec<_>>());
+        parts.push(format!(
+            "{name} **{}** (unasked {}) {}",
+            of(|s| s.asked),
+            of(|s| s.unasked),
+            bracket(Some(first.real))
+        ));
+    }
+    format!(
+        "\nCategories kept apart (slope of each category's generated value on its real one, over the categories \
+         of the goals: 1, as far apart as real categories; 0, all alike; in brackets, draws of half the real \
+         windows): {}.\n",
+        parts.join(", ")
+    )
 }
 
 /// The section of `eval.md`.
@@ -452,6 +570,7 @@ pub fn markdown(a: &AskedSet) -> String {
         opt(a.diversity),
         opt(a.multimodality),
     );
+    s += &separation_line(&[a], &|v| format!("{:.2}", crate::mean_of(v)));
     s
 }
 
@@ -563,9 +682,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
         "\nEvery motion asked for (all categories together) against every real window, mean ± std over the seeds \
          (the unconditioned goals of issue 11): jerk {}×, bone cv {} %, skating in contact {}×, hips height {}×, \
          hips speed {}×, Fréchet (window summaries, to the {split} windows) {} against the train windows' {:.1}; \
-         feature Fréchet {}, diversity {}, multimodality (by the category asked) {}.\n\n\
-         One row per category (seed 0, 4 motions each asked for it, 5 columns from the first frame to the last):\n\n\
-         ![one row per category]({sheet})\n",
+         feature Fréchet {}, diversity {}, multimodality (by the category asked) {}.\n",
         whole(|a| a.generated.jerk_m_s3 / a.real.jerk_m_s3, 2),
         whole(|a| 100.0 * a.generated.bone_cv, 2),
         whole(|a| a.generated.skate_in_contact / a.real.skate_in_contact, 2),
@@ -576,6 +693,12 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
         whole(|a| a.frechet.unwrap_or(f64::NAN), 0),
         whole(|a| a.diversity.unwrap_or(f64::NAN), 1),
         whole(|a| a.multimodality.unwrap_or(f64::NAN), 1),
+    );
+    let sets: Vec<&AskedSet> = runs.iter().map(|r| &r.1).collect();
+    s += &separation_line(&sets, &|v| ms(v.to_vec(), 2));
+    s += &format!(
+        "\nOne row per category (seed 0, 4 motions each asked for it, 5 columns from the first frame to the last):\n\n\
+         ![one row per category]({sheet})\n"
     );
     s
 }
@@ -644,8 +767,22 @@ mod tests {
             generated: MotionStats::default(),
             real: MotionStats::default(),
             frechet_summaries: (65.8, 70.6),
+            speed_separation: Some(Separation {
+                asked: 0.3214,
+                unasked: 0.08,
+                real: (0.95, 1.04),
+            }),
+            stride_separation: Some(Separation {
+                asked: 0.17,
+                unasked: -0.1,
+                real: (0.9, 1.1),
+            }),
         };
         let s = markdown(&set);
+        assert!(
+            s.contains(": hips speed **0.32** (unasked 0.08) [0.95–1.04], stride **0.17** (unasked -0.10) [0.90–1.10].\n"),
+            "{s}"
+        );
         let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
         // Stride: real → asked (unasked).
         assert!(
@@ -673,6 +810,8 @@ mod tests {
             generated: MotionStats::default(),
             real: MotionStats::default(),
             frechet_summaries: (60.0, 70.0),
+            speed_separation: None,
+            stride_separation: None,
         };
         // Seed 0 is too slow, seed 1 fast enough: the mean (0.8) meets it.
         let runs = [
@@ -691,5 +830,58 @@ mod tests {
             "{row}"
         );
         assert!(s.contains("![one row per category](sheet.png)"));
+        // Reports written before the separation: no sentence on it.
+        assert!(!s.contains("Categories kept apart"), "{s}");
+        // With it: the seeds' mean ± std, the first run's real range.
+        let apart = |asked: f64| Separation {
+            asked,
+            unasked: 0.1,
+            real: (0.9, 1.1),
+        };
+        let mut runs = runs;
+        for (k, r) in runs.iter_mut().enumerate() {
+            r.1.speed_separation = Some(apart(0.2 + 0.2 * k as f64));
+            r.1.stride_separation = Some(apart(0.5));
+        }
+        let s = page_section(&runs, "sheet.png", &STANDARD_ASKED);
+        assert!(
+            s.contains("hips speed **0.30 ± 0.14** (unasked 0.10 ± 0.00) [0.90–1.10], stride **0.50 ± 0.00**"),
+            "{s}"
+        );
+        // Before the contact sheet.
+        assert!(s.find("Categories kept apart") < s.find("![one row"), "{s}");
+    }
+
+    #[test]
+    fn separation_is_the_slope_over_the_categories_of_the_goals() {
+        // Real speeds 0.2, 0.4, 0.6 m/s; asked 0.3, 0.35, 0.4 (slope 0.25);
+        // unasked all 0.3 (0). Draws: one as real (1), one 1.1 × real (1.1).
+        let cat = |real: f64, gen: f64| {
+            let mut a = asked(0.9, gen, 0.6);
+            a.real.speed_m_s = real;
+            a.unasked.speed_m_s = 0.3;
+            a
+        };
+        let cats = [cat(0.2, 0.3), cat(0.4, 0.35), cat(0.6, 0.4)];
+        let draws: Vec<Draws> = cats
+            .iter()
+            .map(|a| Draws {
+                ranges: [(1.0, 1.0); 3],
+                speed: vec![a.real.speed_m_s, 1.1 * a.real.speed_m_s],
+                stride: vec![0.3, 0.3],
+            })
+            .collect();
+        let kept: Vec<(&Asked, &Draws)> = cats.iter().zip(&draws).collect();
+        let s = separation(&kept, |p| p.speed_m_s, |d| &d.speed).unwrap();
+        assert!((s.asked - 0.25).abs() < 1e-12, "{s:?}");
+        assert!(s.unasked.abs() < 1e-12, "{s:?}");
+        assert!(
+            (s.real.0 - 1.0).abs() < 1e-12 && (s.real.1 - 1.1).abs() < 1e-12,
+            "{s:?}"
+        );
+        // Every category's real stride is the same: nothing to keep apart.
+        assert_eq!(separation(&kept, |p| p.stride_m, |d| &d.stride), None);
+        // One category: none.
+        assert_eq!(separation(&kept[..1], |p| p.speed_m_s, |d| &d.speed), None);
     }
 }

@@ -597,6 +597,27 @@ pub fn frechet_of_subsets(real: &[Vec<f64>], pool: &[Vec<f64>]) -> Vec<f64> {
         .collect()
 }
 
+/// The least-squares slope of `y` on `x` over the pairs `(x, y)`: how much
+/// of the differences between the `x` come back in the `y` (1: all of
+/// them, 0: none). Given per category a real measure and a generated one,
+/// it says whether the categories keep the differences real ones have, or
+/// are drawn toward one value (`docs/metrics.md`, "Categories kept
+/// apart"). None below two pairs or where every `x` is the same.
+pub fn slope(pairs: &[(f64, f64)]) -> Option<f64> {
+    if pairs.len() < 2 {
+        return None;
+    }
+    let n = pairs.len() as f64;
+    let (sx, sy) = pairs
+        .iter()
+        .fold((0.0, 0.0), |(a, b), p| (a + p.0, b + p.1));
+    let (mx, my) = (sx / n, sy / n);
+    let (sxy, sxx) = pairs.iter().fold((0.0, 0.0), |(a, b), &(x, y)| {
+        (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
+    });
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
 /// Bone-length variation a generated motion may have before
 /// [`goal_distance`] counts it (the goal of issue 11: 1 %).
 pub const BONE_CV_GOAL: f64 = 0.01;
@@ -920,6 +941,25 @@ mod tests {
         // Same points: 0. Shifted by 10: 100.
         assert!(d[0].abs() < 1e-9 && (d[1] - 100.0).abs() < 1e-9, "{d:?}");
         assert!(frechet_of_subsets(&real, &pool[..1]).is_empty());
+    }
+
+    #[test]
+    fn slope_is_least_squares() {
+        // x 1, 2, 3 (mean 2), y 2, 3, 5 (mean 10/3): Σ(x−x̄)(y−ȳ) = 4/3 + 0 + 5/3
+        // = 3, Σ(x−x̄)² = 2, so 1.5.
+        let s = slope(&[(1.0, 2.0), (2.0, 3.0), (3.0, 5.0)]).unwrap();
+        assert!((s - 1.5).abs() < 1e-12, "{s}");
+        // Halfway to one value: y = 0.5 x + 1.
+        let half: Vec<(f64, f64)> = [0.1, 0.4, 0.7]
+            .iter()
+            .map(|&x| (x, 0.5 * x + 1.0))
+            .collect();
+        assert!((slope(&half).unwrap() - 0.5).abs() < 1e-12);
+        // Every category alike: 0.
+        assert_eq!(slope(&[(0.2, 0.3), (0.6, 0.3)]), Some(0.0));
+        // One pair, or no difference to follow: none.
+        assert_eq!(slope(&[(1.0, 2.0)]), None);
+        assert_eq!(slope(&[(1.0, 2.0), (1.0, 3.0)]), None);
     }
 
     #[test]
