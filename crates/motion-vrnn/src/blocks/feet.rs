@@ -679,7 +679,7 @@ pub fn planted(
     still: Option<f32>,
 ) -> [bool; TOES.len()] {
     let slides = still.filter(|_| frames > 1).map(|v| {
-        let cur = if r % frames == 0 { r + 1 } else { r };
+        let cur = if r.is_multiple_of(frames) { r + 1 } else { r };
         (real_slides(raw, f, cur - 1, cur), v)
     });
     std::array::from_fn(|i| {
