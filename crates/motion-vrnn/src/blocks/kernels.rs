@@ -46,8 +46,28 @@ pub(crate) fn k_blocks(k: usize) -> impl Iterator<Item = (usize, usize)> {
 
 /// `c (+)= a · b` with `a: m×k`, `b: k×n`, `c: m×n`; single-threaded; the
 /// same bits on every CPU that runs `gemm`'s same kernel ([`K_BLOCK`]).
+/// A block `gemm` would sum on its general route runs through [`fma_rows`]
+/// instead, `a`'s and `b`'s block copied into rows first (the weights'
+/// gradients, whose left side is a transpose): the same bits, in 16 lanes
+/// where the CPU has AVX-512.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn mm(
+    mnk: (usize, usize, usize),
+    c: &mut [f32],
+    cv: V,
+    acc: bool,
+    a: &[f32],
+    av: V,
+    b: &[f32],
+    bv: V,
+) {
+    mm_with(mnk, c, cv, acc, a, av, b, bv, true)
+}
+
+/// [`mm`], through [`fma_rows`] where it gives `gemm`'s bits if `fma`, else
+/// through `gemm` alone (the tests' reference).
+#[allow(clippy::too_many_arguments)]
+fn mm_with(
     (m, n, k): (usize, usize, usize),
     c: &mut [f32],
     cv: V,
@@ -56,6 +76,7 @@ pub(crate) fn mm(
     av: V,
     b: &[f32],
     bv: V,
+    fma: bool,
 ) {
     if m == 0 || n == 0 {
         return;
@@ -75,6 +96,17 @@ pub(crate) fn mm(
     assert!(end(av, m, k) <= a.len(), "gemm: lhs out of bounds");
     assert!(end(bv, k, n) <= b.len(), "gemm: rhs out of bounds");
     for (i, (start, len)) in k_blocks(k).enumerate() {
+        let a_block = V {
+            off: av.off + start * av.cs,
+            ..av
+        };
+        let b_block = V {
+            off: bv.off + start * bv.rs,
+            ..bv
+        };
+        if fma && block_fma((m, n, len), c, cv, acc || i > 0, a, a_block, b, b_block) {
+            continue;
+        }
         // SAFETY: the asserts above keep every access inside the slices
         // (the block's columns of `a` and rows of `b` lie within `k`); `c`
         // is borrowed mutably, so it cannot alias `a` or `b`.
@@ -102,6 +134,45 @@ pub(crate) fn mm(
             )
         }
     }
+}
+
+/// One block of [`mm`] (`k ≤ K_BLOCK`) through [`fma_strided_avx512`],
+/// reading `a` and `b` where they lie: where the CPU has AVX-512F, `gemm`
+/// would take its general route (the FMA chain the kernel reproduces), and
+/// the rows of `b` and `c` are contiguous; false, with `c` untouched,
+/// elsewhere. (With AVX2 alone `gemm` stays: copying a transposed `a` into
+/// rows for [`fma_rows_avx2`] cost more than it saved.)
+#[allow(clippy::too_many_arguments)]
+fn block_fma(
+    (m, n, k): (usize, usize, usize),
+    c: &mut [f32],
+    cv: V,
+    acc: bool,
+    a: &[f32],
+    av: V,
+    b: &[f32],
+    bv: V,
+) -> bool {
+    if !(has_avx512() && cv.cs == 1 && bv.cs == 1 && general_route((m, n, k), av, bv)) {
+        return false;
+    }
+    let start = if acc { Start::Dst } else { Start::Zero };
+    // SAFETY: the CPU has AVX-512F; `mm` asserted that `a`, `b` and `c` hold
+    // every element the views reach.
+    #[cfg(target_arch = "x86_64")]
+    unsafe {
+        fma_strided_avx512(
+            (m, n, k),
+            c.as_mut_ptr().add(cv.off),
+            cv.rs,
+            a.as_ptr().add(av.off),
+            (av.rs, av.cs),
+            b.as_ptr().add(bv.off),
+            bv.rs,
+            start,
+        )
+    };
+    true
 }
 
 /// A right-hand side of [`mm`] copied once into one row-major `k × n`
@@ -452,7 +523,7 @@ unsafe fn tile<const R: usize, const C: usize, const MASK: bool>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 unsafe fn fma_rows_avx512(
-    (m, n, k): (usize, usize, usize),
+    mnk: (usize, usize, usize),
     c: *mut f32,
     c_rs: usize,
     a: *const f32,
@@ -460,7 +531,27 @@ unsafe fn fma_rows_avx512(
     b: &[f32],
     start: Start,
 ) {
-    let bp = b.as_ptr();
+    fma_strided_avx512(mnk, c, c_rs, a, (a_rs, 1), b.as_ptr(), mnk.1, start)
+}
+
+/// [`fma_rows_avx512`] with element `(r, i)` of `a` at `r·a_rs + i·a_cs`
+/// and row `i` of `b` at `i·b_rs`.
+///
+/// # Safety
+/// As [`fma_rows_avx512`], for those strides.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fma_strided_avx512(
+    (m, n, k): (usize, usize, usize),
+    c: *mut f32,
+    c_rs: usize,
+    a: *const f32,
+    (a_rs, a_cs): (usize, usize),
+    bp: *const f32,
+    b_rs: usize,
+    start: Start,
+) {
     let mut q = 0;
     while q < n {
         let width = (n - q).min(32);
@@ -478,10 +569,10 @@ unsafe fn fma_rows_avx512(
                 s => s,
             };
             match rows {
-                8 => tile16_of::<8>(width, k, at, a_rs, bt, n, ct, c_rs, st),
-                4 => tile16_of::<4>(width, k, at, a_rs, bt, n, ct, c_rs, st),
-                2 => tile16_of::<2>(width, k, at, a_rs, bt, n, ct, c_rs, st),
-                _ => tile16_of::<1>(width, k, at, a_rs, bt, n, ct, c_rs, st),
+                8 => tile16_of::<8>(width, k, at, (a_rs, a_cs), bt, b_rs, ct, c_rs, st),
+                4 => tile16_of::<4>(width, k, at, (a_rs, a_cs), bt, b_rs, ct, c_rs, st),
+                2 => tile16_of::<2>(width, k, at, (a_rs, a_cs), bt, b_rs, ct, c_rs, st),
+                _ => tile16_of::<1>(width, k, at, (a_rs, a_cs), bt, b_rs, ct, c_rs, st),
             }
             r += rows;
         }
@@ -499,7 +590,7 @@ unsafe fn tile16_of<const R: usize>(
     width: usize,
     k: usize,
     a: *const f32,
-    a_rs: usize,
+    a_rs: (usize, usize),
     b: *const f32,
     b_rs: usize,
     c: *mut f32,
@@ -523,7 +614,7 @@ unsafe fn tile16_of<const R: usize>(
 unsafe fn tile16<const R: usize, const C: usize, const MASK: bool>(
     k: usize,
     a: *const f32,
-    a_rs: usize,
+    (a_rs, a_cs): (usize, usize),
     b: *const f32,
     b_rs: usize,
     c: *mut f32,
@@ -550,7 +641,7 @@ unsafe fn tile16<const R: usize, const C: usize, const MASK: bool>(
             *v = load(b.add(i * b_rs + 16 * j), j);
         }
         for (row, s) in sum.iter_mut().enumerate() {
-            let x = _mm512_set1_ps(*a.add(row * a_rs + i));
+            let x = _mm512_set1_ps(*a.add(row * a_rs + i * a_cs));
             for (s, v) in s.iter_mut().zip(&bv) {
                 *s = _mm512_fmadd_ps(x, *v, *s);
             }
@@ -797,7 +888,7 @@ mod tests {
                 let c0: Vec<f32> = (0..1 + m * c_rs).map(|i| value(i, 3)).collect();
                 let (mut want, mut got) = (c0.clone(), c0);
                 let (av, cv) = (rm(2, a_rs), rm(1, c_rs));
-                mm((m, n, k), &mut want, cv, acc, &a, av, &b, bv);
+                mm_with((m, n, k), &mut want, cv, acc, &a, av, &b, bv, false);
                 mm_small((m, n, k), &mut got, cv, acc, &a, av, &b, bv, &packed);
                 for (i, (g, w)) in got.iter().zip(&want).enumerate() {
                     assert_eq!(
@@ -819,7 +910,7 @@ mod tests {
                     Some(v) => v.repeat(m),
                     None => vec![0.0; m * n],
                 };
-                mm(
+                mm_with(
                     (m, n, k),
                     &mut want,
                     rm(0, n),
@@ -828,6 +919,7 @@ mod tests {
                     rm(0, k),
                     &b,
                     bv,
+                    false,
                 );
                 // Whichever route it takes, `mm_rows` gives `gemm`'s bits.
                 let rows = mm_rows((m, n, k), &a, &b, bv, start);
@@ -890,15 +982,17 @@ mod tests {
                     }
                 }
                 let acc = !matches!(start, Start::Zero);
-                mm(
+                let (av, bv) = (rm(0, a_rs), rm(0, n));
+                mm_with(
                     (m, n, k),
                     &mut want,
                     rm(0, c_rs),
                     acc,
                     &a,
-                    rm(0, a_rs),
+                    av,
                     &b,
-                    rm(0, n),
+                    bv,
+                    false,
                 );
                 for (name, kernel) in &kernels {
                     let mut got = c0.clone();
@@ -922,6 +1016,60 @@ mod tests {
                             "{name} n {n}, element {i}: {g} against {w}"
                         );
                     }
+                }
+            }
+        }
+    }
+
+    /// `mm` gives `gemm`'s bits on the weights' gradients (a transposed
+    /// left side, thousands of rows summed in blocks of [`K_BLOCK`]), from
+    /// zero and accumulated, into strided rows (on a CPU without AVX-512
+    /// both sides are `gemm`'s).
+    #[test]
+    fn weight_gradients_give_gemms_bits() {
+        let value = |i: usize, salt: usize| {
+            let x = (i * 2_654_435_761 + salt * 40_503) % 1_000_003;
+            (x as f32 / 1_000_003.0 - 0.5) * 3.0
+        };
+        // (out, inp, rows, offset of b's columns, b's row stride): dense
+        // layers' `gᵀ · x`, and the scan's, whose `b` starts inside a row.
+        let shapes = [
+            (16, 32, 4096, 0, 32),
+            (128, 40, 4096, 0, 40),
+            (48, 58, 1000, 0, 58),
+            (60, 48, 300, 0, 48),
+            (8, 32, 4096, 0, 32),
+            (16, 32, 4096, 8, 40),
+            (3, 5, 7, 2, 9),
+        ];
+        for (out, inp, rows, off, b_rs) in shapes {
+            let g: Vec<f32> = (0..rows * out).map(|i| value(i, 1)).collect();
+            let x: Vec<f32> = (0..rows * b_rs).map(|i| value(i, 2)).collect();
+            let c0: Vec<f32> = (0..out * (inp + 1)).map(|i| value(i, 3)).collect();
+            for acc in [false, true] {
+                let run = |fma: bool| {
+                    let mut c = c0.clone();
+                    let (av, bv) = (tr(0, out), rm(off, b_rs));
+                    mm_with(
+                        (out, inp, rows),
+                        &mut c,
+                        rm(0, inp + 1),
+                        acc,
+                        &g,
+                        av,
+                        &x,
+                        bv,
+                        fma,
+                    );
+                    c
+                };
+                let (got, want) = (run(true), run(false));
+                for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                    assert_eq!(
+                        g.to_bits(),
+                        w.to_bits(),
+                        "{out}x{inp}x{rows} (acc {acc}) element {i}: {g} against {w}"
+                    );
                 }
             }
         }
