@@ -136,12 +136,12 @@ fn mm_with(
     }
 }
 
-/// One block of [`mm`] (`k ≤ K_BLOCK`) through [`fma_strided_avx512`],
+/// One block of [`mm`] (`k ≤ K_BLOCK`) through [`fma_avx512`],
 /// reading `a` and `b` where they lie: where the CPU has AVX-512F, `gemm`
 /// would take its general route (the FMA chain the kernel reproduces), and
 /// the rows of `b` and `c` are contiguous; false, with `c` untouched,
 /// elsewhere. (With AVX2 alone `gemm` stays: copying a transposed `a` into
-/// rows for [`fma_rows_avx2`] cost more than it saved.)
+/// rows for [`fma_avx2`] cost more than it saved.)
 #[allow(clippy::too_many_arguments)]
 fn block_fma(
     (m, n, k): (usize, usize, usize),
@@ -161,7 +161,7 @@ fn block_fma(
     // every element the views reach.
     #[cfg(target_arch = "x86_64")]
     unsafe {
-        fma_strided_avx512(
+        fma_avx512(
             (m, n, k),
             c.as_mut_ptr().add(cv.off),
             cv.rs,
@@ -340,10 +340,7 @@ enum Start<'a> {
 
 /// The kernel of [`mm_small`] and [`mm_rows`]: each element summed as
 /// `gemm`'s FMA kernel sums it, from zero, one fused multiply-add per step
-/// of the inner dimension in order, then added to its start; 16 lanes at
-/// a time where the CPU has AVX-512 ([`fma_rows_avx512`]), else 8
-/// ([`fma_rows_avx2`]). A lane's sum is the same chain of correctly
-/// rounded operations at either width, so the bits are too.
+/// of the inner dimension in order, then added to its start.
 ///
 /// # Safety
 /// The CPU has AVX2 and FMA; `a` points at `m` rows of `k` values `a_rs`
@@ -359,59 +356,77 @@ unsafe fn fma_rows(
     b: &[f32],
     start: Start,
 ) {
-    if has_avx512() {
-        fma_rows_avx512(mnk, c, c_rs, a, a_rs, b, start)
-    } else {
-        fma_rows_avx2(mnk, c, c_rs, a, a_rs, b, start)
-    }
+    fma_strided(mnk, c, c_rs, a, (a_rs, 1), b.as_ptr(), mnk.1, start)
 }
 
-/// [`fma_rows`] in 8 lanes: tiles of 6 rows (12 accumulators, as `gemm`'s
-/// kernel; then 4, 2, 1 for the last rows) by 16 columns (then 8, then the
-/// last 1–7 under a mask: one at a time they cost the decoder's 60-wide
-/// output twice its time).
+/// [`fma_rows`] with element `(r, i)` of `a` at `r·a_rs + i·a_cs` and row
+/// `i` of `b` at `i·b_rs`: 16 lanes at a time where the CPU has AVX-512
+/// ([`fma_avx512`]), else 8 ([`fma_avx2`]). A lane's sum is the same chain
+/// of correctly rounded operations at either width, so the bits are too.
 ///
 /// # Safety
-/// As [`fma_rows`].
+/// As [`fma_rows`], for those strides.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn fma_rows_avx2(
-    (m, n, k): (usize, usize, usize),
+#[allow(clippy::too_many_arguments)]
+unsafe fn fma_strided(
+    mnk: (usize, usize, usize),
     c: *mut f32,
     c_rs: usize,
     a: *const f32,
-    a_rs: usize,
-    b: &[f32],
+    a_s: (usize, usize),
+    b: *const f32,
+    b_rs: usize,
     start: Start,
 ) {
-    let bp = b.as_ptr();
-    let mut q = 0;
-    while q < n {
-        let (wide, width) = (n - q >= 16, (n - q).min(8));
-        let mut r = 0;
-        while r < m {
-            let rows = match m - r {
-                6.. => 6,
-                4 | 5 => 4,
-                2 | 3 => 2,
-                _ => 1,
-            };
-            let (ct, at, bt) = (c.add(r * c_rs + q), a.add(r * a_rs), bp.add(q));
-            let st = match start {
-                Start::Bias(v) => Start::Bias(&v[q..]),
-                s => s,
-            };
-            let cols = (wide, width);
-            match rows {
-                6 => tile_of::<6>(cols, k, at, a_rs, bt, n, ct, c_rs, st),
-                4 => tile_of::<4>(cols, k, at, a_rs, bt, n, ct, c_rs, st),
-                2 => tile_of::<2>(cols, k, at, a_rs, bt, n, ct, c_rs, st),
-                _ => tile_of::<1>(cols, k, at, a_rs, bt, n, ct, c_rs, st),
-            }
-            r += rows;
-        }
-        q += if wide { 16 } else { width };
+    if has_avx512() {
+        fma_avx512(mnk, c, c_rs, a, a_s, b, b_rs, start)
+    } else {
+        fma_avx2(mnk, c, c_rs, a, a_s, b, b_rs, start)
     }
+}
+
+/// [`fma_strided`] in 8 lanes: tiles of 6 rows (12 accumulators of the 16
+/// registers, as `gemm`'s kernel) by 16 columns.
+///
+/// # Safety
+/// As [`fma_strided`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fma_avx2(
+    mnk: (usize, usize, usize),
+    c: *mut f32,
+    c_rs: usize,
+    a: *const f32,
+    a_s: (usize, usize),
+    b: *const f32,
+    b_rs: usize,
+    start: Start,
+) {
+    blocks::<std::arch::x86_64::__m256>(mnk, c, c_rs, a, a_s, b, b_rs, start)
+}
+
+/// [`fma_strided`] in 16 lanes: tiles of 8 rows (16 accumulators of the 32
+/// registers) by 32 columns. On a core with 512-bit multiply-add units
+/// (AMD Zen 5, Intel server cores) twice the arithmetic of [`fma_avx2`]
+/// per instruction.
+///
+/// # Safety
+/// As [`fma_strided`], and the CPU has AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn fma_avx512(
+    mnk: (usize, usize, usize),
+    c: *mut f32,
+    c_rs: usize,
+    a: *const f32,
+    a_s: (usize, usize),
+    b: *const f32,
+    b_rs: usize,
+    start: Start,
+) {
+    blocks::<std::arch::x86_64::__m512>(mnk, c, c_rs, a, a_s, b, b_rs, start)
 }
 
 /// Off x86-64 [`fast_rows`] never holds, so nothing calls this.
@@ -428,151 +443,168 @@ unsafe fn fma_rows(
     unreachable!("fma_rows runs only where fast_rows holds (x86-64)")
 }
 
-/// `R` rows of [`fma_rows`]' column block: 16 columns if `wide`, else the
-/// `width` (1–8) left, the last 1–7 under a mask.
+/// A vector of `f32` lanes for [`blocks`]: its width, the rows of a full
+/// tile, and the operations the tiles use (each compiled into the
+/// `#[target_feature]` function that instantiates [`blocks`] with it).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-#[inline]
-unsafe fn tile_of<const R: usize>(
-    (wide, width): (bool, usize),
-    k: usize,
-    a: *const f32,
-    a_rs: usize,
-    b: *const f32,
-    b_rs: usize,
-    c: *mut f32,
-    c_rs: usize,
-    start: Start,
-) {
-    match (wide, width) {
-        (true, _) => tile::<R, 2, false>(k, a, a_rs, b, b_rs, c, c_rs, start, 8),
-        (false, 8) => tile::<R, 1, false>(k, a, a_rs, b, b_rs, c, c_rs, start, 8),
-        (false, w) => tile::<R, 1, true>(k, a, a_rs, b, b_rs, c, c_rs, start, w),
+trait Lanes: Copy {
+    /// Lanes of a vector.
+    const N: usize;
+    /// Rows of a full tile: two vectors of accumulators each.
+    const ROWS: usize;
+    /// Which lanes a masked load or store touches.
+    type Mask: Copy;
+    /// The first `lanes` lanes (1..N).
+    unsafe fn mask(lanes: usize) -> Self::Mask;
+    unsafe fn zero() -> Self;
+    unsafe fn splat(x: f32) -> Self;
+    unsafe fn load(p: *const f32, m: Option<Self::Mask>) -> Self;
+    unsafe fn store(p: *mut f32, v: Self, m: Option<Self::Mask>);
+    /// `a·b + c`, rounded once.
+    unsafe fn fma(a: Self, b: Self, c: Self) -> Self;
+    unsafe fn add(a: Self, b: Self) -> Self;
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Lanes for std::arch::x86_64::__m256 {
+    const N: usize = 8;
+    const ROWS: usize = 6;
+    type Mask = std::arch::x86_64::__m256i;
+    #[inline(always)]
+    unsafe fn mask(lanes: usize) -> Self::Mask {
+        use std::arch::x86_64::*;
+        _mm256_cmpgt_epi32(
+            _mm256_set1_epi32(lanes as i32),
+            _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+        )
+    }
+    #[inline(always)]
+    unsafe fn zero() -> Self {
+        std::arch::x86_64::_mm256_setzero_ps()
+    }
+    #[inline(always)]
+    unsafe fn splat(x: f32) -> Self {
+        std::arch::x86_64::_mm256_set1_ps(x)
+    }
+    #[inline(always)]
+    unsafe fn load(p: *const f32, m: Option<Self::Mask>) -> Self {
+        use std::arch::x86_64::*;
+        match m {
+            Some(m) => _mm256_maskload_ps(p, m),
+            None => _mm256_loadu_ps(p),
+        }
+    }
+    #[inline(always)]
+    unsafe fn store(p: *mut f32, v: Self, m: Option<Self::Mask>) {
+        use std::arch::x86_64::*;
+        match m {
+            Some(m) => _mm256_maskstore_ps(p, m, v),
+            None => _mm256_storeu_ps(p, v),
+        }
+    }
+    #[inline(always)]
+    unsafe fn fma(a: Self, b: Self, c: Self) -> Self {
+        std::arch::x86_64::_mm256_fmadd_ps(a, b, c)
+    }
+    #[inline(always)]
+    unsafe fn add(a: Self, b: Self) -> Self {
+        std::arch::x86_64::_mm256_add_ps(a, b)
     }
 }
 
-/// `R` rows by `8·C` columns of [`fma_rows`].
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-#[inline]
-unsafe fn tile<const R: usize, const C: usize, const MASK: bool>(
-    k: usize,
-    a: *const f32,
-    a_rs: usize,
-    b: *const f32,
-    b_rs: usize,
-    c: *mut f32,
-    c_rs: usize,
-    start: Start,
-    width: usize,
-) {
-    use std::arch::x86_64::*;
-    // With `MASK`, the first `width` columns only (C = 1): lanes past them
-    // are neither read nor written.
-    let mask = _mm256_cmpgt_epi32(
-        _mm256_set1_epi32(width as i32),
-        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-    );
-    let load = |p: *const f32| {
-        if MASK {
-            _mm256_maskload_ps(p, mask)
-        } else {
-            _mm256_loadu_ps(p)
-        }
-    };
-    let mut sum = [[_mm256_setzero_ps(); C]; R];
-    for i in 0..k {
-        let mut bv = [_mm256_setzero_ps(); C];
-        for (j, v) in bv.iter_mut().enumerate() {
-            *v = load(b.add(i * b_rs + 8 * j));
-        }
-        for (row, s) in sum.iter_mut().enumerate() {
-            let x = _mm256_set1_ps(*a.add(row * a_rs + i));
-            for (s, v) in s.iter_mut().zip(&bv) {
-                *s = _mm256_fmadd_ps(x, *v, *s);
-            }
+impl Lanes for std::arch::x86_64::__m512 {
+    const N: usize = 16;
+    const ROWS: usize = 8;
+    type Mask = std::arch::x86_64::__mmask16;
+    #[inline(always)]
+    unsafe fn mask(lanes: usize) -> Self::Mask {
+        ((1u32 << lanes) - 1) as u16
+    }
+    #[inline(always)]
+    unsafe fn zero() -> Self {
+        std::arch::x86_64::_mm512_setzero_ps()
+    }
+    #[inline(always)]
+    unsafe fn splat(x: f32) -> Self {
+        std::arch::x86_64::_mm512_set1_ps(x)
+    }
+    #[inline(always)]
+    unsafe fn load(p: *const f32, m: Option<Self::Mask>) -> Self {
+        use std::arch::x86_64::*;
+        match m {
+            Some(m) => _mm512_maskz_loadu_ps(m, p),
+            None => _mm512_loadu_ps(p),
         }
     }
-    for (row, s) in sum.iter().enumerate() {
-        for (j, s) in s.iter().enumerate() {
-            let p = c.add(row * c_rs + 8 * j);
-            let v = match start {
-                Start::Zero => *s,
-                Start::Dst => _mm256_add_ps(load(p), *s),
-                Start::Bias(v) => _mm256_add_ps(load(v.as_ptr().add(8 * j)), *s),
-            };
-            if MASK {
-                _mm256_maskstore_ps(p, mask, v);
-            } else {
-                _mm256_storeu_ps(p, v);
-            }
+    #[inline(always)]
+    unsafe fn store(p: *mut f32, v: Self, m: Option<Self::Mask>) {
+        use std::arch::x86_64::*;
+        match m {
+            Some(m) => _mm512_mask_storeu_ps(p, m, v),
+            None => _mm512_storeu_ps(p, v),
         }
+    }
+    #[inline(always)]
+    unsafe fn fma(a: Self, b: Self, c: Self) -> Self {
+        std::arch::x86_64::_mm512_fmadd_ps(a, b, c)
+    }
+    #[inline(always)]
+    unsafe fn add(a: Self, b: Self) -> Self {
+        std::arch::x86_64::_mm512_add_ps(a, b)
     }
 }
 
-/// [`fma_rows`] in 16 lanes: tiles of 8 rows (then 4, 2, 1) by 32 columns
-/// (two vectors of 16; the last block's last vector under a mask), 16
-/// accumulators of the 32 registers. On a core with 512-bit multiply-add
-/// units (AMD Zen 5, Intel server cores) it does twice the arithmetic of
-/// [`fma_rows_avx2`] per instruction.
-///
-/// # Safety
-/// As [`fma_rows`], and the CPU has AVX-512F.
+/// [`fma_strided`] in vectors `L`: tiles of `L::ROWS` rows (then 4, 2, 1)
+/// by two vectors of columns (the last block one or two, its last vector
+/// under a mask where the columns run out: one column at a time cost the
+/// decoder's 60-wide output twice its time).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn fma_rows_avx512(
-    mnk: (usize, usize, usize),
-    c: *mut f32,
-    c_rs: usize,
-    a: *const f32,
-    a_rs: usize,
-    b: &[f32],
-    start: Start,
-) {
-    fma_strided_avx512(mnk, c, c_rs, a, (a_rs, 1), b.as_ptr(), mnk.1, start)
-}
-
-/// [`fma_rows_avx512`] with element `(r, i)` of `a` at `r·a_rs + i·a_cs`
-/// and row `i` of `b` at `i·b_rs`.
-///
-/// # Safety
-/// As [`fma_rows_avx512`], for those strides.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn fma_strided_avx512(
+#[inline(always)]
+unsafe fn blocks<L: Lanes>(
     (m, n, k): (usize, usize, usize),
     c: *mut f32,
     c_rs: usize,
     a: *const f32,
-    (a_rs, a_cs): (usize, usize),
-    bp: *const f32,
+    a_s: (usize, usize),
+    b: *const f32,
     b_rs: usize,
     start: Start,
 ) {
     let mut q = 0;
     while q < n {
-        let width = (n - q).min(32);
+        let width = (n - q).min(2 * L::N);
         let mut r = 0;
         while r < m {
             let rows = match m - r {
-                8.. => 8,
-                4..=7 => 4,
+                x if x >= L::ROWS => L::ROWS,
+                4.. => 4,
                 2 | 3 => 2,
                 _ => 1,
             };
-            let (ct, at, bt) = (c.add(r * c_rs + q), a.add(r * a_rs), bp.add(q));
+            let (ct, at, bt) = (c.add(r * c_rs + q), a.add(r * a_s.0), b.add(q));
             let st = match start {
                 Start::Bias(v) => Start::Bias(&v[q..]),
                 s => s,
             };
+            let t = Tile {
+                k,
+                a: at,
+                a_s,
+                b: bt,
+                b_rs,
+                c: ct,
+                c_rs,
+                start: st,
+                width,
+            };
             match rows {
-                8 => tile16_of::<8>(width, k, at, (a_rs, a_cs), bt, b_rs, ct, c_rs, st),
-                4 => tile16_of::<4>(width, k, at, (a_rs, a_cs), bt, b_rs, ct, c_rs, st),
-                2 => tile16_of::<2>(width, k, at, (a_rs, a_cs), bt, b_rs, ct, c_rs, st),
-                _ => tile16_of::<1>(width, k, at, (a_rs, a_cs), bt, b_rs, ct, c_rs, st),
+                8 => tile_of::<L, 8>(t),
+                6 => tile_of::<L, 6>(t),
+                4 => tile_of::<L, 4>(t),
+                2 => tile_of::<L, 2>(t),
+                _ => tile_of::<L, 1>(t),
             }
             r += rows;
         }
@@ -580,86 +612,78 @@ unsafe fn fma_strided_avx512(
     }
 }
 
-/// `R` rows of [`fma_rows_avx512`]'s column block of `width` (1–32)
-/// columns: two vectors from 17 on, the last under a mask unless full.
+/// One tile of [`blocks`]: `k` steps of the inner dimension, `a` at its
+/// first row (strides `a_s`), `b` at its first column (rows `b_rs` apart),
+/// `c` at its first element (rows `c_rs` apart), `width` (1 to two
+/// vectors) columns.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[allow(clippy::too_many_arguments)]
-#[inline]
-unsafe fn tile16_of<const R: usize>(
-    width: usize,
+#[derive(Clone, Copy)]
+struct Tile<'a> {
     k: usize,
     a: *const f32,
-    a_rs: (usize, usize),
+    a_s: (usize, usize),
     b: *const f32,
     b_rs: usize,
     c: *mut f32,
     c_rs: usize,
-    start: Start,
-) {
-    match width {
-        32 => tile16::<R, 2, false>(k, a, a_rs, b, b_rs, c, c_rs, start, 32),
-        17.. => tile16::<R, 2, true>(k, a, a_rs, b, b_rs, c, c_rs, start, width),
-        16 => tile16::<R, 1, false>(k, a, a_rs, b, b_rs, c, c_rs, start, 16),
-        _ => tile16::<R, 1, true>(k, a, a_rs, b, b_rs, c, c_rs, start, width),
+    start: Start<'a>,
+    width: usize,
+}
+
+/// `R` rows of a [`Tile`]: two vectors past one vector's width, the last
+/// under a mask unless the width fills it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn tile_of<L: Lanes, const R: usize>(t: Tile) {
+    match (t.width > L::N, t.width.is_multiple_of(L::N)) {
+        (true, true) => tile::<L, R, 2, false>(t),
+        (true, false) => tile::<L, R, 2, true>(t),
+        (false, true) => tile::<L, R, 1, false>(t),
+        (false, false) => tile::<L, R, 1, true>(t),
     }
 }
 
-/// `R` rows by `width` (`16·(C − 1)` + 1–16) columns of
-/// [`fma_rows_avx512`].
+/// `R` rows by `C` vectors of a [`Tile`]; with `MASK`, the last vector's
+/// first `width − N·(C − 1)` lanes only: lanes past them are neither read
+/// nor written.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[allow(clippy::too_many_arguments)]
-#[inline]
-unsafe fn tile16<const R: usize, const C: usize, const MASK: bool>(
-    k: usize,
-    a: *const f32,
-    (a_rs, a_cs): (usize, usize),
-    b: *const f32,
-    b_rs: usize,
-    c: *mut f32,
-    c_rs: usize,
-    start: Start,
-    width: usize,
-) {
-    use std::arch::x86_64::*;
-    // With `MASK`, the last vector's first `width − 16·(C − 1)` lanes only:
-    // lanes past them are neither read nor written.
-    let mask: __mmask16 = ((1u32 << (width - 16 * (C - 1))) - 1) as u16;
-    let masked = |j: usize| MASK && j + 1 == C;
-    let load = |p: *const f32, j: usize| {
-        if masked(j) {
-            _mm512_maskz_loadu_ps(mask, p)
-        } else {
-            _mm512_loadu_ps(p)
-        }
-    };
-    let mut sum = [[_mm512_setzero_ps(); C]; R];
+#[inline(always)]
+unsafe fn tile<L: Lanes, const R: usize, const C: usize, const MASK: bool>(t: Tile) {
+    let Tile {
+        k,
+        a,
+        a_s: (a_rs, a_cs),
+        b,
+        b_rs,
+        c,
+        c_rs,
+        start,
+        width,
+    } = t;
+    let mask = MASK.then(|| L::mask(width - L::N * (C - 1)));
+    let m = |j: usize| if j + 1 == C { mask } else { None };
+    let mut sum = [[L::zero(); C]; R];
     for i in 0..k {
-        let mut bv = [_mm512_setzero_ps(); C];
+        let mut bv = [L::zero(); C];
         for (j, v) in bv.iter_mut().enumerate() {
-            *v = load(b.add(i * b_rs + 16 * j), j);
+            *v = L::load(b.add(i * b_rs + L::N * j), m(j));
         }
         for (row, s) in sum.iter_mut().enumerate() {
-            let x = _mm512_set1_ps(*a.add(row * a_rs + i * a_cs));
+            let x = L::splat(*a.add(row * a_rs + i * a_cs));
             for (s, v) in s.iter_mut().zip(&bv) {
-                *s = _mm512_fmadd_ps(x, *v, *s);
+                *s = L::fma(x, *v, *s);
             }
         }
     }
     for (row, s) in sum.iter().enumerate() {
         for (j, s) in s.iter().enumerate() {
-            let p = c.add(row * c_rs + 16 * j);
+            let p = c.add(row * c_rs + L::N * j);
             let v = match start {
                 Start::Zero => *s,
-                Start::Dst => _mm512_add_ps(load(p, j), *s),
-                Start::Bias(v) => _mm512_add_ps(load(v.as_ptr().add(16 * j), j), *s),
+                Start::Dst => L::add(L::load(p, m(j)), *s),
+                Start::Bias(v) => L::add(L::load(v.as_ptr().add(L::N * j), m(j)), *s),
             };
-            if masked(j) {
-                _mm512_mask_storeu_ps(p, mask, v);
-            } else {
-                _mm512_storeu_ps(p, v);
-            }
+            L::store(p, v, m(j));
         }
     }
 }
@@ -954,11 +978,19 @@ mod tests {
             let x = (i * 2_654_435_761 + salt * 40_503) % 1_000_003;
             (x as f32 / 1_000_003.0 - 0.5) * 3.0
         };
-        type Kernel =
-            unsafe fn((usize, usize, usize), *mut f32, usize, *const f32, usize, &[f32], Start);
-        let mut kernels: Vec<(&str, Kernel)> = vec![("avx2", fma_rows_avx2)];
+        type Kernel = unsafe fn(
+            (usize, usize, usize),
+            *mut f32,
+            usize,
+            *const f32,
+            (usize, usize),
+            *const f32,
+            usize,
+            Start,
+        );
+        let mut kernels: Vec<(&str, Kernel)> = vec![("avx2", fma_avx2)];
         if has_avx512() {
-            kernels.push(("avx512", fma_rows_avx512));
+            kernels.push(("avx512", fma_avx512));
         } else {
             eprintln!("AVX-512 part skipped: this CPU has no AVX-512F");
         }
@@ -1004,8 +1036,9 @@ mod tests {
                             got.as_mut_ptr(),
                             c_rs,
                             a.as_ptr(),
-                            a_rs,
-                            &b,
+                            (a_rs, 1),
+                            b.as_ptr(),
+                            n,
                             start,
                         )
                     };
