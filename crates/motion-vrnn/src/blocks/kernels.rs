@@ -46,10 +46,10 @@ pub(crate) fn k_blocks(k: usize) -> impl Iterator<Item = (usize, usize)> {
 
 /// `c (+)= a · b` with `a: m×k`, `b: k×n`, `c: m×n`; single-threaded; the
 /// same bits on every CPU that runs `gemm`'s same kernel ([`K_BLOCK`]).
-/// A block `gemm` would sum on its general route runs through [`fma_rows`]
-/// instead, `a`'s and `b`'s block copied into rows first (the weights'
-/// gradients, whose left side is a transpose): the same bits, in 16 lanes
-/// where the CPU has AVX-512.
+/// Where the CPU has AVX-512, a block `gemm` would sum on its general route
+/// runs through the 16-lane kernel instead ([`block_fma`]; the weights'
+/// gradients, whose transposed left side it reads where it lies): the same
+/// bits.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn mm(
     mnk: (usize, usize, usize),
@@ -64,8 +64,8 @@ pub(crate) fn mm(
     mm_with(mnk, c, cv, acc, a, av, b, bv, true)
 }
 
-/// [`mm`], through [`fma_rows`] where it gives `gemm`'s bits if `fma`, else
-/// through `gemm` alone (the tests' reference).
+/// [`mm`], through [`block_fma`] where it gives `gemm`'s bits if `fma`,
+/// else through `gemm` alone (the tests' reference).
 #[allow(clippy::too_many_arguments)]
 fn mm_with(
     (m, n, k): (usize, usize, usize),
