@@ -388,15 +388,17 @@ fn separation(
     let real = (0..draws)
         .map(|k| over(&|_, d| of(d)[k]))
         .collect::<Option<Vec<f64>>>()?;
-    let lo_hi = real
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
-            (lo.min(v), hi.max(v))
-        });
+    if real.is_empty() {
+        return None;
+    }
     Some(Separation {
         asked: over(&|a, _| f(&a.generated))?,
         unasked: over(&|a, _| f(&a.unasked))?,
-        real: (!real.is_empty()).then_some(lo_hi)?,
+        real: real
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            }),
     })
 }
 
@@ -467,9 +469,9 @@ fn bracket(r: Option<(f64, f64)>) -> String {
 }
 
 /// The sentence on the categories kept apart ([`Separation`]): for the hips
-/// speed and the stride, the asked and unasked slopes as `text` makes them
-/// of the runs' separations (`pick` takes one from a run's set) and the
-/// real-vs-real range of the first; empty where a run has none.
+/// speed and the stride, the asked and unasked slopes of the runs `sets`
+/// as `text` writes them (one run's value, or the seeds' mean ± std) and
+/// the first run's real-vs-real range; empty where a run has none.
 fn separation_line(sets: &[&AskedSet], text: &dyn Fn(&[f64]) -> String) -> String {
     type Pick = fn(&AskedSet) -> Option<Separation>;
     let measures: [(&str, Pick); 2] = [
