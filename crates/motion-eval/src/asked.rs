@@ -322,8 +322,8 @@ pub fn ask_each(
             real: plain(&real).ok_or_else(missing)?,
             generated: plain(&gen_poses).ok_or_else(missing)?,
             unasked: plain(&un_poses).ok_or_else(missing)?,
-            real_spread: [d.ranges[0], d.ranges[1]],
-            stride_spread: Some(d.ranges[2]),
+            real_spread: [d.range(|s| s.root_speed_m_s), d.range(|s| s.contact_share)],
+            stride_spread: Some(d.range(|s| s.stride_m)),
         });
         draws.push(d);
         all_labels.extend(std::iter::repeat_n(cat, gen.len()));
@@ -335,8 +335,8 @@ pub fn ask_each(
         .zip(&draws)
         .filter(|(a, _)| a.in_goals())
         .collect();
-    let speed_separation = separation(&kept, |p| p.speed_m_s, |d| &d.speed);
-    let stride_separation = separation(&kept, |p| p.stride_m, |d| &d.stride);
+    let speed_separation = separation(&kept, |p| p.speed_m_s, |s| s.root_speed_m_s);
+    let stride_separation = separation(&kept, |p| p.stride_m, |s| s.stride_m);
     let test_all = seen
         .split(&spec.split)
         .map_or(Vec::new(), |s| s.1.features.clone());
@@ -368,12 +368,12 @@ pub fn ask_each(
 }
 
 /// [`Separation`] of the categories `kept` (each with its real windows'
-/// draws) in the measure `f`, `of` giving each draw's value of it; None
-/// below two categories or where their real values are all the same.
+/// draws) in the measure `f`, `of` giving a draw's value of it; None below
+/// two categories or where their real values are all the same.
 fn separation(
     kept: &[(&Asked, &Draws)],
     f: fn(&Plain) -> f64,
-    of: fn(&Draws) -> &[f64],
+    of: fn(&MotionStats) -> f64,
 ) -> Option<Separation> {
     use motion_metrics::slope;
     let over = |g: &dyn Fn(&Asked, &Draws) -> f64| {
@@ -384,9 +384,9 @@ fn separation(
                 .collect::<Vec<_>>(),
         )
     };
-    let draws = kept.iter().map(|(_, d)| of(d).len()).min().unwrap_or(0);
+    let draws = kept.iter().map(|(_, d)| d.each.len()).min().unwrap_or(0);
     let real = (0..draws)
-        .map(|k| over(&|_, d| of(d)[k]))
+        .map(|k| over(&|_, d| of(&d.each[k])))
         .collect::<Option<Vec<f64>>>()?;
     if real.is_empty() {
         return None;
@@ -394,58 +394,45 @@ fn separation(
     Some(Separation {
         asked: over(&|a, _| f(&a.generated))?,
         unasked: over(&|a, _| f(&a.unasked))?,
-        real: real
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
-                (lo.min(v), hi.max(v))
-            }),
+        real: crate::lo_hi(real.into_iter()),
     })
 }
 
-/// What [`spread`] draws of a category's real windows.
+/// What [`spread`] draws of a category's real windows: the measures of
+/// all of them and of each draw.
 struct Draws {
-    /// Smallest and largest ratio of hips speed, contact share and stride
-    /// of a draw to all of them.
-    ranges: [(f64, f64); 3],
-    /// Each draw's hips speed, m/s.
-    speed: Vec<f64>,
-    /// Each draw's stride, m.
-    stride: Vec<f64>,
+    all: MotionStats,
+    each: Vec<MotionStats>,
 }
 
-/// [`REAL_DRAWS`] draws of half of `real`: the ratios of their hips speed,
-/// contact share and stride to all of it (smallest and largest of each),
-/// and their hips speeds and strides.
+impl Draws {
+    /// Smallest and largest ratio of a draw's measure `f` to all windows'.
+    fn range(&self, f: fn(&MotionStats) -> f64) -> (f64, f64) {
+        let all = f(&self.all).max(1e-12);
+        crate::lo_hi(self.each.iter().map(|s| f(s) / all))
+    }
+}
+
+/// [`REAL_DRAWS`] draws of half of `real`, measured.
 fn spread(real: &[Vec<Pose>], seed: u64) -> Draws {
     let opts = Options::default();
-    let all = motion_stats(real, &opts);
     let k = (real.len() / 2).max(1);
     let mut rng = motion_vrnn::rng::Rng::new(seed, 0x5B2E);
-    let mut out = Draws {
-        ranges: [(f64::INFINITY, f64::NEG_INFINITY); 3],
-        speed: Vec::with_capacity(REAL_DRAWS),
-        stride: Vec::with_capacity(REAL_DRAWS),
-    };
-    for _ in 0..REAL_DRAWS {
-        let pick: Vec<Vec<Pose>> = rng
-            .permutation(real.len())
-            .into_iter()
-            .take(k)
-            .map(|i| real[i].clone())
-            .collect();
-        let s = motion_stats(&pick, &opts);
-        out.speed.push(s.root_speed_m_s);
-        out.stride.push(s.stride_m);
-        for (o, (g, r)) in out.ranges.iter_mut().zip([
-            (s.root_speed_m_s, all.root_speed_m_s),
-            (s.contact_share, all.contact_share),
-            (s.stride_m, all.stride_m),
-        ]) {
-            let ratio = g / r.max(1e-12);
-            *o = (o.0.min(ratio), o.1.max(ratio));
-        }
+    let each = (0..REAL_DRAWS)
+        .map(|_| {
+            let pick: Vec<Vec<Pose>> = rng
+                .permutation(real.len())
+                .into_iter()
+                .take(k)
+                .map(|i| real[i].clone())
+                .collect();
+            motion_stats(&pick, &opts)
+        })
+        .collect();
+    Draws {
+        all: motion_stats(real, &opts),
+        each,
     }
-    out
 }
 
 /// `v` as one set of `length`-frame windows.
@@ -865,16 +852,20 @@ mod tests {
             a
         };
         let cats = [cat(0.2, 0.3), cat(0.4, 0.35), cat(0.6, 0.4)];
+        let stats = |speed: f64| MotionStats {
+            root_speed_m_s: speed,
+            stride_m: 0.3,
+            ..MotionStats::default()
+        };
         let draws: Vec<Draws> = cats
             .iter()
             .map(|a| Draws {
-                ranges: [(1.0, 1.0); 3],
-                speed: vec![a.real.speed_m_s, 1.1 * a.real.speed_m_s],
-                stride: vec![0.3, 0.3],
+                all: stats(a.real.speed_m_s),
+                each: vec![stats(a.real.speed_m_s), stats(1.1 * a.real.speed_m_s)],
             })
             .collect();
         let kept: Vec<(&Asked, &Draws)> = cats.iter().zip(&draws).collect();
-        let s = separation(&kept, |p| p.speed_m_s, |d| &d.speed).unwrap();
+        let s = separation(&kept, |p| p.speed_m_s, |s| s.root_speed_m_s).unwrap();
         assert!((s.asked - 0.25).abs() < 1e-12, "{s:?}");
         assert!(s.unasked.abs() < 1e-12, "{s:?}");
         assert!(
@@ -882,8 +873,17 @@ mod tests {
             "{s:?}"
         );
         // Every category's real stride is the same: nothing to keep apart.
-        assert_eq!(separation(&kept, |p| p.stride_m, |d| &d.stride), None);
+        assert_eq!(separation(&kept, |p| p.stride_m, |s| s.stride_m), None);
         // One category: none.
-        assert_eq!(separation(&kept[..1], |p| p.speed_m_s, |d| &d.speed), None);
+        assert_eq!(
+            separation(&kept[..1], |p| p.speed_m_s, |s| s.root_speed_m_s),
+            None
+        );
+        // The ratio ranges: each draw's value ÷ all windows' (1.0 and 1.1).
+        let r = draws[1].range(|s| s.root_speed_m_s);
+        assert!(
+            (r.0 - 1.0).abs() < 1e-12 && (r.1 - 1.1).abs() < 1e-12,
+            "{r:?}"
+        );
     }
 }

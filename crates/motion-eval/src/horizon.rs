@@ -6,7 +6,7 @@
 //! size (`docs/metrics.md`, "Long horizon").
 
 use crate::run::{Run, RunSpec};
-use crate::EvalError;
+use crate::{lo_hi, EvalError};
 use mocap_ingest::features::NUM_FEATURES;
 use mocap_ingest::skeleton::Pose;
 use motion_metrics::{motion_stats, MotionStats, Options};
@@ -251,15 +251,8 @@ fn frechet_draws(
     Some(FrechetDraws {
         windows,
         lo,
-        mean: d.iter().sum::<f64>() / d.len() as f64,
+        mean: crate::mean_of(&d),
         hi,
-    })
-}
-
-/// Smallest and largest of `xs` (∞ and −∞ when empty).
-fn lo_hi(xs: impl Iterator<Item = f64>) -> (f64, f64) {
-    xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
-        (lo.min(x), hi.max(x))
     })
 }
 
