@@ -810,6 +810,13 @@ pub(crate) fn dsigma(s: f32) -> f32 {
 mod tests {
     use super::*;
 
+    /// A deterministic spread of values in [−1.5, 1.5) for the products'
+    /// operands, `salt` telling operands apart.
+    fn value(i: usize, salt: usize) -> f32 {
+        let x = (i * 2_654_435_761 + salt * 40_503) % 1_000_003;
+        (x as f32 / 1_000_003.0 - 0.5) * 3.0
+    }
+
     /// The inner dimension is cut as `gemm` cuts it with 512-long blocks:
     /// equal pieces of at most 512, in order, covering it once.
     #[test]
@@ -874,10 +881,6 @@ mod tests {
     /// shapes `gemm` routes elsewhere), accumulating or not, on strided rows.
     #[test]
     fn small_products_give_gemms_bits() {
-        let value = |i: usize, salt: usize| {
-            let x = (i * 2_654_435_761 + salt * 40_503) % 1_000_003;
-            (x as f32 / 1_000_003.0 - 0.5) * 3.0
-        };
         // (m, n, k, b transposed): the scan's four products at 32 and at
         // other shard sizes, and odd shapes.
         let shapes = [
@@ -974,10 +977,6 @@ mod tests {
             eprintln!("skipped: this CPU has no AVX2 and FMA");
             return;
         }
-        let value = |i: usize, salt: usize| {
-            let x = (i * 2_654_435_761 + salt * 40_503) % 1_000_003;
-            (x as f32 / 1_000_003.0 - 0.5) * 3.0
-        };
         type Kernel = unsafe fn(
             (usize, usize, usize),
             *mut f32,
@@ -1060,10 +1059,6 @@ mod tests {
     /// both sides are `gemm`'s).
     #[test]
     fn weight_gradients_give_gemms_bits() {
-        let value = |i: usize, salt: usize| {
-            let x = (i * 2_654_435_761 + salt * 40_503) % 1_000_003;
-            (x as f32 / 1_000_003.0 - 0.5) * 3.0
-        };
         // (out, inp, rows, offset of b's columns, b's row stride): dense
         // layers' `gᵀ · x`, and the scan's, whose `b` starts inside a row.
         let shapes = [
