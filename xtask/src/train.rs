@@ -94,6 +94,9 @@ pub struct TrainArgs {
     /// Fed-back frames in runs of this many consecutive frames (1: each on its own).
     #[arg(long)]
     pub feed_run: Option<usize>,
+    /// Judge and keep as `best` a moving average of the weights with this decay per step, e.g. 0.95 (0: off; needs --select generation; docs/training.md).
+    #[arg(long)]
+    pub average: Option<f64>,
     /// KL warm-up epochs (0: off).
     #[arg(long)]
     pub kl_warmup: Option<usize>,
@@ -180,7 +183,7 @@ impl TrainArgs {
             latent epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
             judge_stretches condition condition_dropout rollouts_at_temperature float_limit
             contact_speed swing_weight fed_jerk_weight rollout_gradient last_round_gradient inits
-            feed_run
+            feed_run average
         }
     }
 }

@@ -72,12 +72,26 @@ fn metrics(run: &Path) -> Vec<serde_json::Value> {
 #[test]
 fn sigkill_and_resume_reaches_the_uninterrupted_result() {
     integration_tests::require_samples!();
+    kill_and_resume(&[]);
+}
+
+/// The weights' average (`--average`) is part of the optimiser's state: the
+/// judged `best` after a resume is the uninterrupted run's.
+#[test]
+fn the_weights_average_resumes_exactly() {
+    integration_tests::require_samples!();
+    kill_and_resume(&["--average", "0.9"]);
+}
+
+/// Train with `extra` options once through and once killed after epoch 3
+/// and resumed: the same metrics and bytes.
+fn kill_and_resume(extra: &[&str]) {
     let tmp = tempfile::tempdir().unwrap();
     let ds = dataset(tmp.path());
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
-    assert!(train_cmd(&ds, &a).status().unwrap().success());
+    assert!(train_cmd(&ds, &a).args(extra).status().unwrap().success());
 
-    let mut child = train_cmd(&ds, &b).spawn().unwrap();
+    let mut child = train_cmd(&ds, &b).args(extra).spawn().unwrap();
     let deadline = Instant::now() + Duration::from_secs(120);
     while epoch_of(&b) < 3 && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(5));
@@ -88,7 +102,7 @@ fn sigkill_and_resume_reaches_the_uninterrupted_result() {
     assert!((3..15).contains(&killed_at), "killed at epoch {killed_at}");
 
     let mut resume = train_cmd(&ds, &b);
-    resume.arg("--resume");
+    resume.args(extra).arg("--resume");
     assert!(resume.status().unwrap().success());
 
     assert_eq!(epoch_of(&b), 15);
@@ -171,4 +185,29 @@ fn the_best_of_several_initialisations_is_kept_and_trained_on_as_probed() {
     assert_eq!(loss, losses[kept]);
     // Candidates differ (else the test shows nothing).
     assert!(losses.iter().any(|l| *l != losses[0]), "{losses:?}");
+}
+
+#[test]
+fn the_weights_average_needs_the_judge_and_a_decay_under_1() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = dataset(tmp.path());
+    for (args, says) in [
+        (
+            ["--average", "0.9", "--select", "loss"],
+            "--average needs --select generation",
+        ),
+        (
+            ["--average", "1.5", "--select", "generation"],
+            "a decay between 0 and 1, got 1.5",
+        ),
+    ] {
+        let out = train_for("2", &ds, &tmp.path().join("run"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{args:?} trained");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
 }

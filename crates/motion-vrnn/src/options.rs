@@ -193,6 +193,9 @@ pub struct Overrides {
     pub inits: Option<usize>,
     /// Fed-back frames in runs of this many (1: each on its own).
     pub feed_run: Option<usize>,
+    /// Decay of the weights' moving average the judge keeps
+    /// ([`TrainConfig::average`]; 0: off).
+    pub average: Option<f64>,
 }
 
 impl Overrides {
@@ -280,6 +283,9 @@ impl Overrides {
         if let Some(v) = self.feed_run {
             cfg.feed_run = (v > 1).then_some(v);
         }
+        if let Some(v) = self.average {
+            cfg.average = (v != 0.0).then_some(v);
+        }
         match self.condition {
             Some(ConditionOn::None) => {
                 cfg.condition = None;
@@ -329,9 +335,11 @@ mod tests {
             latent: Some(16),
             inits: Some(1),
             feed_run: Some(1),
+            average: Some(0.0),
             ..Default::default()
         }
         .apply(&mut cfg);
+        assert_eq!(cfg.average, None);
         assert_eq!(cfg.inits, None);
         assert_eq!(cfg.feed_run, None);
         assert_eq!(cfg.model.latent, 16);
@@ -379,6 +387,12 @@ mod tests {
         }
         .apply(&mut paper);
         assert_eq!(paper.feed_run, Some(8));
+        Overrides {
+            average: Some(0.95),
+            ..Default::default()
+        }
+        .apply(&mut paper);
+        assert_eq!(paper.average, Some(0.95));
         assert_eq!("loss".parse::<SelectBy>(), Ok(SelectBy::Loss));
         assert!("best".parse::<SelectBy>().is_err());
         assert_eq!(

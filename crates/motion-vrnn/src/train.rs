@@ -63,6 +63,12 @@ pub struct TrainConfig {
     /// (`--feed-run`; [`feed_mask`]); `None`: each frame on its own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub feed_run: Option<usize>,
+    /// Judge, and keep as `best`, an exponential moving average of the
+    /// weights with this decay per step instead of the weights themselves
+    /// (`--average`; [`crate::optim::Adam::with_average`]; needs
+    /// [`Select::Generation`]); None: the weights.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub average: Option<f64>,
 }
 
 /// Epochs each initialisation is trained before they are compared
@@ -156,6 +162,7 @@ impl TrainConfig {
             condition: None,
             inits: None,
             feed_run: None,
+            average: None,
         }
     }
 
@@ -246,6 +253,9 @@ impl TrainConfig {
         }
         if let Some(n) = self.judge_stretches {
             s += &format!(", judged over {n} stretches");
+        }
+        if let Some(b) = self.average {
+            s += &format!(", the weights' moving average (decay {b}) judged");
         }
         if let Some(i) = self.inits {
             s += &format!(
@@ -788,18 +798,23 @@ pub fn train(
         None => Vec::new(),
     };
     let config = &config;
-    let judge = match config.select {
-        Select::Loss => None,
-        Select::Generation { every: 0 } => {
-            return Err(TrainError::Invalid(
-                "choosing by generated motion needs a positive period".into(),
-            ))
-        }
-        Select::Generation { every } => Some((
-            Judge::new(data)?.stretches(config.judge_stretches.unwrap_or(1)),
-            every,
-        )),
-    };
+    let judge =
+        match config.select {
+            Select::Loss if config.average.is_some() => return Err(TrainError::Invalid(
+                "the weights' average is what the judge keeps: --average needs --select generation"
+                    .into(),
+            )),
+            Select::Loss => None,
+            Select::Generation { every: 0 } => {
+                return Err(TrainError::Invalid(
+                    "choosing by generated motion needs a positive period".into(),
+                ))
+            }
+            Select::Generation { every } => Some((
+                Judge::new(data)?.stretches(config.judge_stretches.unwrap_or(1)),
+                every,
+            )),
+        };
     let last_dir = run.join(layout::LAST);
     let resume = resume && resumable(run, progress)?;
     if !resume && last_dir.exists() {
@@ -823,6 +838,11 @@ pub fn train(
     let init_seed = init.as_ref().map_or(config.seed, |i| i.seed);
     let t = init_model(&config.model, init_seed, device)?;
     let mut adam = Adam::new(named_vars(&t.varmap), config.adam)?;
+    if let Some(beta) = config.average {
+        adam = adam
+            .with_average(beta)
+            .map_err(|e| TrainError::Invalid(e.to_string()))?;
+    }
     let mut history: Vec<EpochMetrics> = Vec::new();
     let mut start_epoch = 0;
     let mut best = (f64::INFINITY, 0usize);
@@ -893,6 +913,9 @@ pub fn train(
             Some((j, every))
                 if (m.epoch % every == 0 && m.epoch >= config.schedule_end()) || last =>
             {
+                // The judge sees the average where one is kept, and `best`
+                // (saved below) holds it; `last` holds the weights.
+                adam.swap_average()?;
                 let v = j.judge(&t.model, device)?;
                 let better = best_generated.is_none_or(|(s, _)| v.score < s);
                 if better {
@@ -921,6 +944,9 @@ pub fn train(
         append_metrics(&metrics_path, &m)?;
         if chosen {
             save_checkpoint(run, layout::BEST, &t.varmap, None, &meta)?;
+        }
+        if m.generated.is_some() {
+            adam.swap_average()?;
         }
         save_checkpoint(run, layout::LAST, &t.varmap, Some(&adam), &meta)?;
         progress.epoch(&m);
