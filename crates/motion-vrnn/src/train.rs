@@ -798,23 +798,24 @@ pub fn train(
         None => Vec::new(),
     };
     let config = &config;
-    let judge =
-        match config.select {
-            Select::Loss if config.average.is_some() => return Err(TrainError::Invalid(
-                "the weights' average is what the judge keeps: --average needs --select generation"
-                    .into(),
-            )),
-            Select::Loss => None,
-            Select::Generation { every: 0 } => {
-                return Err(TrainError::Invalid(
-                    "choosing by generated motion needs a positive period".into(),
-                ))
-            }
-            Select::Generation { every } => Some((
-                Judge::new(data)?.stretches(config.judge_stretches.unwrap_or(1)),
-                every,
-            )),
-        };
+    if config.average.is_some() && config.select.is_loss() {
+        return Err(TrainError::Invalid(
+            "the weights' average is what the judge keeps: --average needs --select generation"
+                .into(),
+        ));
+    }
+    let judge = match config.select {
+        Select::Loss => None,
+        Select::Generation { every: 0 } => {
+            return Err(TrainError::Invalid(
+                "choosing by generated motion needs a positive period".into(),
+            ))
+        }
+        Select::Generation { every } => Some((
+            Judge::new(data)?.stretches(config.judge_stretches.unwrap_or(1)),
+            every,
+        )),
+    };
     let last_dir = run.join(layout::LAST);
     let resume = resume && resumable(run, progress)?;
     if !resume && last_dir.exists() {
