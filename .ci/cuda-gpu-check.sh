@@ -101,6 +101,9 @@ run() {
   # The minute preset: feed rounds at the temperature and the pace as a condition.
   train minute gpu --preset minute
   train minute cpu --preset minute
+  # The weights' average: the judge scores it and `best` keeps it.
+  train average gpu --average 0.95 --inits 1
+  train average cpu --average 0.95 --inits 1
   train paper-preset gpu --model paper --preset paper
   train paper-preset cpu --model paper --preset paper
   # Sampling the default's run exercises the pace on the sampling path too.
@@ -114,15 +117,18 @@ keys = ["train_recon", "train_kl", "val_recon", "val_kl"]
 bad = 0
 if os.path.exists(os.path.join(w, "failures")):
     print(open(os.path.join(w, "failures")).read(), end=""); bad += 1
-for n in ["paper", "smooth", "skeletal", "feet", "fed", "motion", "minute", "paper-preset"]:
+for n in ["paper", "smooth", "skeletal", "feet", "fed", "motion", "minute", "average", "paper-preset"]:
     p = [os.path.join(w, d, n, "metrics.jsonl") for d in ("gpu", "cpu")]
     if not all(map(os.path.exists, p)):
         print(f"{n:13s} MISSING"); bad += 1; continue
     g, c = ([json.loads(l) for l in open(f)] for f in p)
     worst = max(abs(a[k] - b[k]) / abs(b[k]) for a, b in zip(g, c) for k in keys)
-    ok = len(g) == len(c) and worst <= 1e-4
+    # The judge's scores, where it judged (for `average`, the average's).
+    judged = [(a["generated"]["score"], b["generated"]["score"]) for a, b in zip(g, c) if a.get("generated") and b.get("generated")]
+    judge = max((abs(x - y) / abs(y) for x, y in judged), default=0.0)
+    ok = len(g) == len(c) and worst <= 1e-4 and judge <= 1e-4
     bad += not ok
-    print(f"{n:13s} {len(g)} epochs, losses GPU vs CPU: worst relative difference {worst:.1e} {'ok' if ok else 'FAIL'}")
+    print(f"{n:13s} {len(g)} epochs, losses GPU vs CPU: worst relative difference {worst:.1e}, judge {judge:.1e} {'ok' if ok else 'FAIL'}")
 try:
     import numpy as np, pyarrow.parquet as pq
     for f in ["samples", "reconstructions"]:
