@@ -31,7 +31,7 @@ enum Command {
     Audit(audit::AuditArgs),
     /// Train a model (default: the project's best; `--model paper` for the
     /// paper's VRNN) on a dataset (checkpoints, metrics, loss curve).
-    Train(train::TrainArgs),
+    Train(Box<train::TrainArgs>),
     /// Sample motions from a trained run's prior (and reconstruct test
     /// windows): Parquet + JSON, BVH, contact sheet, animations, 3-D viewer.
     Sample(motion::SampleArgs),
@@ -113,7 +113,7 @@ fn main() -> Result<()> {
     motion_vrnn::train::keep_freed_memory();
     match Cli::parse().command {
         Command::Dataset(args) => dataset::run(args),
-        Command::Train(args) => train::run(args),
+        Command::Train(args) => train::run(*args),
         Command::Sample(args) => motion::sample(args),
         Command::Continue(args) => motion::continue_clip(args),
         Command::Export(args) => motion::export(args),

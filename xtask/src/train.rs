@@ -66,6 +66,15 @@ pub struct TrainArgs {
     /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
     #[arg(long)]
     pub latent: Option<usize>,
+    /// Override the model's LSTM hidden size (the paper's 32).
+    #[arg(long, value_parser = positive_size)]
+    pub hidden: Option<usize>,
+    /// Override the feature extractor's two layer sizes, `A,B` (the paper's 48,32).
+    #[arg(long, value_parser = two_sizes)]
+    pub extractor: Option<[usize; 2]>,
+    /// Override the decoder's two layer sizes, `A,B` (the paper's 32,48).
+    #[arg(long, value_parser = two_sizes)]
+    pub decoder: Option<[usize; 2]>,
     /// Starting point for every option below (docs/training.md, "Presets").
     /// `minute`: `standard` with --feed-rounds 0 --rollouts-at-temperature
     /// --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3;
@@ -170,6 +179,26 @@ impl Bar {
     }
 }
 
+/// A positive layer size.
+fn positive_size(s: &str) -> Result<usize, String> {
+    s.trim()
+        .parse::<usize>()
+        .ok()
+        .filter(|&n| n > 0)
+        .ok_or_else(|| format!("`{s}`: a positive size"))
+}
+
+/// Two positive layer sizes, `A,B`.
+fn two_sizes(s: &str) -> Result<[usize; 2], String> {
+    let v: Vec<usize> = s
+        .split(',')
+        .map(|x| x.trim().parse::<usize>().ok().filter(|&n| n > 0))
+        .collect::<Option<_>>()
+        .ok_or_else(|| format!("`{s}`: two positive sizes, A,B"))?;
+    v.try_into()
+        .map_err(|_| format!("`{s}`: two positive sizes, A,B"))
+}
+
 impl TrainArgs {
     /// The options that replace the preset's values: each option is the
     /// field of [`Overrides`] of the same name (a field left out, or one
@@ -180,7 +209,7 @@ impl TrainArgs {
         }
         same_names! {
             latent_filter output_filter feet_weight kl_weight self_feed feed_rounds temperature
-            latent epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
+            latent hidden extractor decoder epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
             judge_stretches condition condition_dropout rollouts_at_temperature float_limit
             contact_speed swing_weight fed_jerk_weight rollout_gradient last_round_gradient inits
             feed_run average
@@ -333,4 +362,22 @@ pub struct ClassifierArgs {
     /// Epochs (default 30).
     #[arg(long)]
     epochs: Option<usize>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layer_sizes_are_positive_and_come_in_pairs() {
+        assert_eq!(two_sizes("64,48"), Ok([64, 48]));
+        assert_eq!(two_sizes(" 64, 96 "), Ok([64, 96]));
+        for bad in ["64", "64,48,32", "0,48", "a,b", "", "64,"] {
+            let e = two_sizes(bad).unwrap_err();
+            assert!(e.contains("two positive sizes"), "{bad}: {e}");
+        }
+        assert_eq!(positive_size("64"), Ok(64));
+        assert!(positive_size("0").is_err());
+        assert!(positive_size("-1").is_err());
+    }
 }

@@ -141,6 +141,12 @@ pub struct Overrides {
     pub temperature: Option<f64>,
     /// Latent size (the paper's 8).
     pub latent: Option<usize>,
+    /// LSTM hidden size (the paper's 32).
+    pub hidden: Option<usize>,
+    /// Feature-extractor layer sizes (the paper's 48, 32).
+    pub extractor: Option<[usize; 2]>,
+    /// Decoder layer sizes (the paper's 32, 48).
+    pub decoder: Option<[usize; 2]>,
     /// Epochs.
     pub epochs: Option<usize>,
     /// Windows per step.
@@ -247,6 +253,15 @@ impl Overrides {
         if let Some(v) = self.latent {
             cfg.model.latent = v;
         }
+        if let Some(v) = self.hidden {
+            cfg.model.hidden = v;
+        }
+        if let Some(v) = self.extractor {
+            cfg.model.extractor = v;
+        }
+        if let Some(v) = self.decoder {
+            cfg.model.decoder = v;
+        }
         if let Some(v) = self.epochs {
             cfg.epochs = v;
         }
@@ -333,6 +348,9 @@ mod tests {
             judge_stretches: Some(1),
             seed: Some(3),
             latent: Some(16),
+            hidden: Some(64),
+            extractor: Some([64, 48]),
+            decoder: Some([40, 96]),
             inits: Some(1),
             feed_run: Some(1),
             average: Some(0.0),
@@ -343,6 +361,10 @@ mod tests {
         assert_eq!(cfg.inits, None);
         assert_eq!(cfg.feed_run, None);
         assert_eq!(cfg.model.latent, 16);
+        assert_eq!(
+            (cfg.model.hidden, cfg.model.extractor, cfg.model.decoder),
+            (64, [64, 48], [40, 96])
+        );
         assert_eq!(cfg.judge_stretches, None);
         assert_eq!(cfg.model.parts.kl_weight, None);
         assert_eq!(cfg.clip_grad_norm, None);
