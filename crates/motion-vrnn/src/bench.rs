@@ -23,6 +23,11 @@ pub const CONDITIONED: &str = "motion+category";
 /// feed rounds drawn at the sampling temperature.
 pub const DEFAULT: &str = "minute";
 
+/// The bench's name for [`DEFAULT`] twice as wide ([`Config::widened`];
+/// `cargo xtask train --extractor 64,64 --hidden 64 --latent 16 --decoder
+/// 64,96`): timed when named, not in the default list.
+pub const WIDE: &str = "minute-wide";
+
 /// The models `bench-train` times: every model of [`crate::model::MODELS`],
 /// then [`CONDITIONED`] and [`DEFAULT`].
 pub fn bench_models() -> Vec<String> {
@@ -37,11 +42,16 @@ pub fn bench_models() -> Vec<String> {
 /// `name` if it is one of [`bench_models`], or an error listing them (a
 /// command-line parser).
 pub fn parse_model(name: &str) -> Result<String, String> {
-    crate::model::one_of(name, &bench_models())
+    let mut names = bench_models();
+    names.push(WIDE.to_string());
+    crate::model::one_of(name, &names)
 }
 
 /// The configuration `name` ([`bench_models`]) stands for.
 fn bench_config(name: &str) -> Option<Config> {
+    if name == WIDE {
+        return bench_config(DEFAULT).map(Config::widened);
+    }
     if name == CONDITIONED || name == DEFAULT {
         let mut c = Config::named(crate::model::DEFAULT_MODEL)?;
         if name == DEFAULT {
@@ -470,6 +480,28 @@ fn against_pytorch(rows: &[SpeedUp], out: &mut dyn FnMut(&str)) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_wide_default_is_timed_when_named_and_differs_only_in_its_sizes() {
+        assert_eq!(parse_model(WIDE), Ok(WIDE.to_string()));
+        assert!(!bench_models().iter().any(|m| m == WIDE));
+        let (d, w) = (bench_config(DEFAULT).unwrap(), bench_config(WIDE).unwrap());
+        assert_eq!(
+            (w.extractor, w.hidden, w.latent, w.decoder),
+            ([64, 64], 64, 16, [64, 96])
+        );
+        assert_eq!(Config { ..w.clone() }.widened(), w);
+        assert_eq!(
+            Config {
+                extractor: d.extractor,
+                hidden: d.hidden,
+                latent: d.latent,
+                decoder: d.decoder,
+                ..w
+            },
+            d
+        );
+    }
 
     fn row(model: &str, batch: usize, median: f64) -> StepTiming {
         StepTiming {

@@ -332,6 +332,18 @@ fn seam_weight(t: usize) -> f64 {
 }
 
 impl Config {
+    /// Twice the paper's sizes (extractor 64/64, LSTM 64, latent 16,
+    /// decoder 64/96), the rest as it is: docs/training.md, "Twice as wide".
+    pub fn widened(self) -> Config {
+        Config {
+            extractor: [64, 64],
+            hidden: 64,
+            latent: 16,
+            decoder: [64, 96],
+            ..self
+        }
+    }
+
     /// The model called `name` in [`MODELS`].
     pub fn named(name: &str) -> Option<Config> {
         let smooth = Parts {
