@@ -333,7 +333,8 @@ fn seam_weight(t: usize) -> f64 {
 
 impl Config {
     /// Twice the paper's sizes (extractor 64/64, LSTM 64, latent 16,
-    /// decoder 64/96), the rest as it is: docs/training.md, "Twice as wide".
+    /// decoder 64/96), the rest as it is: docs/training.md, "Twice as wide, on
+    /// today's default".
     pub fn widened(self) -> Config {
         Config {
             extractor: [64, 64],
