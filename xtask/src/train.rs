@@ -67,13 +67,13 @@ pub struct TrainArgs {
     #[arg(long)]
     pub latent: Option<usize>,
     /// Override the model's LSTM hidden size (the paper's 32).
-    #[arg(long, value_parser = positive_size)]
+    #[arg(long, value_parser = motion_vrnn::options::parse_size)]
     pub hidden: Option<usize>,
     /// Override the feature extractor's two layer sizes, `A,B` (the paper's 48,32).
-    #[arg(long, value_parser = two_sizes)]
+    #[arg(long, value_parser = motion_vrnn::options::parse_two_sizes)]
     pub extractor: Option<[usize; 2]>,
     /// Override the decoder's two layer sizes, `A,B` (the paper's 32,48).
-    #[arg(long, value_parser = two_sizes)]
+    #[arg(long, value_parser = motion_vrnn::options::parse_two_sizes)]
     pub decoder: Option<[usize; 2]>,
     /// Starting point for every option below (docs/training.md, "Presets").
     /// `minute`: `standard` with --feed-rounds 0 --rollouts-at-temperature
@@ -177,26 +177,6 @@ impl Bar {
             self.0.println(line);
         }
     }
-}
-
-/// A positive layer size.
-fn positive_size(s: &str) -> Result<usize, String> {
-    s.trim()
-        .parse::<usize>()
-        .ok()
-        .filter(|&n| n > 0)
-        .ok_or_else(|| format!("`{s}`: a positive size"))
-}
-
-/// Two positive layer sizes, `A,B`.
-fn two_sizes(s: &str) -> Result<[usize; 2], String> {
-    let v: Vec<usize> = s
-        .split(',')
-        .map(|x| x.trim().parse::<usize>().ok().filter(|&n| n > 0))
-        .collect::<Option<_>>()
-        .ok_or_else(|| format!("`{s}`: two positive sizes, A,B"))?;
-    v.try_into()
-        .map_err(|_| format!("`{s}`: two positive sizes, A,B"))
 }
 
 impl TrainArgs {
@@ -362,22 +342,4 @@ pub struct ClassifierArgs {
     /// Epochs (default 30).
     #[arg(long)]
     epochs: Option<usize>,
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn layer_sizes_are_positive_and_come_in_pairs() {
-        assert_eq!(two_sizes("64,48"), Ok([64, 48]));
-        assert_eq!(two_sizes(" 64, 96 "), Ok([64, 96]));
-        for bad in ["64", "64,48,32", "0,48", "a,b", "", "64,"] {
-            let e = two_sizes(bad).unwrap_err();
-            assert!(e.contains("two positive sizes"), "{bad}: {e}");
-        }
-        assert_eq!(positive_size("64"), Ok(64));
-        assert!(positive_size("0").is_err());
-        assert!(positive_size("-1").is_err());
-    }
 }

@@ -332,9 +332,42 @@ impl Overrides {
     }
 }
 
+/// A positive layer size (a command-line parser).
+pub fn parse_size(s: &str) -> Result<usize, String> {
+    s.trim()
+        .parse::<usize>()
+        .ok()
+        .filter(|&n| n > 0)
+        .ok_or_else(|| format!("`{s}`: a positive size"))
+}
+
+/// Two positive layer sizes, `A,B` (a command-line parser).
+pub fn parse_two_sizes(s: &str) -> Result<[usize; 2], String> {
+    let v: Vec<usize> = s
+        .split(',')
+        .map(|x| x.trim().parse::<usize>().ok().filter(|&n| n > 0))
+        .collect::<Option<_>>()
+        .ok_or_else(|| format!("`{s}`: two positive sizes, A,B"))?;
+    v.try_into()
+        .map_err(|_| format!("`{s}`: two positive sizes, A,B"))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn layer_sizes_are_positive_and_come_in_pairs() {
+        assert_eq!(parse_two_sizes("64,48"), Ok([64, 48]));
+        assert_eq!(parse_two_sizes(" 64, 96 "), Ok([64, 96]));
+        for bad in ["64", "64,48,32", "0,48", "a,b", "", "64,"] {
+            let e = parse_two_sizes(bad).unwrap_err();
+            assert!(e.contains("two positive sizes"), "{bad}: {e}");
+        }
+        assert_eq!(parse_size("64"), Ok(64));
+        assert!(parse_size("0").is_err());
+        assert!(parse_size("-1").is_err());
+    }
 
     #[test]
     fn off_values_become_none_and_the_judge_keeps_its_period() {
