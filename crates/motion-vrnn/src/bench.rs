@@ -490,7 +490,7 @@ mod tests {
             (w.extractor, w.hidden, w.latent, w.decoder),
             ([64, 64], 64, 16, [64, 96])
         );
-        assert_eq!(Config { ..w.clone() }.widened(), w);
+        assert_eq!(w.clone().widened(), w);
         assert_eq!(
             Config {
                 extractor: d.extractor,

@@ -343,13 +343,10 @@ pub fn parse_size(s: &str) -> Result<usize, String> {
 
 /// Two positive layer sizes, `A,B` (a command-line parser).
 pub fn parse_two_sizes(s: &str) -> Result<[usize; 2], String> {
-    let v: Vec<usize> = s
-        .split(',')
-        .map(|x| x.trim().parse::<usize>().ok().filter(|&n| n > 0))
-        .collect::<Option<_>>()
-        .ok_or_else(|| format!("`{s}`: two positive sizes, A,B"))?;
-    v.try_into()
-        .map_err(|_| format!("`{s}`: two positive sizes, A,B"))
+    let sizes: Option<Vec<usize>> = s.split(',').map(|x| parse_size(x).ok()).collect();
+    sizes
+        .and_then(|v| v.try_into().ok())
+        .ok_or_else(|| format!("`{s}`: two positive sizes, A,B"))
 }
 
 #[cfg(test)]
