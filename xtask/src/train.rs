@@ -69,15 +69,16 @@ pub struct TrainArgs {
     /// Override the model's LSTM hidden size (the paper's 32).
     #[arg(long, value_parser = motion_vrnn::options::parse_size)]
     pub hidden: Option<usize>,
-    /// Override the feature extractor's two layer sizes, `A,B` (the paper's 48,32).
+    /// Override the feature extractor's two layer sizes, `A,B` (the paper's 48,32; the `minute` preset's 64,32).
     #[arg(long, value_parser = motion_vrnn::options::parse_two_sizes)]
     pub extractor: Option<[usize; 2]>,
-    /// Override the decoder's two layer sizes, `A,B` (the paper's 32,48).
+    /// Override the decoder's two layer sizes, `A,B` (the paper's 32,48; the `minute` preset's 64,96).
     #[arg(long, value_parser = motion_vrnn::options::parse_two_sizes)]
     pub decoder: Option<[usize; 2]>,
     /// Starting point for every option below (docs/training.md, "Presets").
     /// `minute`: `standard` with --feed-rounds 0 --rollouts-at-temperature
-    /// --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3;
+    /// --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3
+    /// --extractor 64,32 --decoder 64,96;
     /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
     /// stopping 60; `quick`: 30 epochs; `paper`: the paper (batch 1,600).
     #[arg(long, default_value = "minute")]

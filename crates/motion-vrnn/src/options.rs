@@ -17,9 +17,19 @@ pub enum Preset {
     /// motion ([`Preset::overrides`]): fed back to every depth in one pass,
     /// drawn at the sampling temperature, conditioned on the category and the pace, the judge over
     /// 14 stretches every 10 epochs (`docs/training.md`, "The judge and the
-    /// minute"), from the best of 3 initialisations after 20 epochs.
+    /// minute"), from the best of 3 initialisations after 20 epochs, with
+    /// a wider extractor and decoder ([`MINUTE_EXTRACTOR`],
+    /// [`MINUTE_DECODER`]).
     Minute,
 }
+
+/// The `minute` preset's feature-extractor sizes: the paper's 48, 32 widened
+/// to 64, 32 (docs/training.md, "A wider extractor and decoder: the
+/// default since 2026-11-28").
+pub const MINUTE_EXTRACTOR: [usize; 2] = [64, 32];
+
+/// The `minute` preset's decoder sizes: the paper's 32, 48 doubled.
+pub const MINUTE_DECODER: [usize; 2] = [64, 96];
 
 impl Preset {
     /// The preset's configuration (its model: the default model), before
@@ -43,6 +53,8 @@ impl Preset {
                 judge_stretches: Some(14),
                 judge_every: Some(10),
                 inits: Some(3),
+                extractor: Some(MINUTE_EXTRACTOR),
+                decoder: Some(MINUTE_DECODER),
                 ..Overrides::default()
             },
             _ => Overrides::default(),
@@ -459,8 +471,8 @@ mod tests {
         let motion = || crate::model::Config::named("motion").unwrap_or_default();
         let minute = Preset::Minute.for_model(motion());
         // The same as `--feed-rounds 0 --rollouts-at-temperature --condition
-        // category+pace --judge-stretches 14 --judge-every 10 --inits 3` on
-        // `standard`.
+        // category+pace --judge-stretches 14 --judge-every 10 --inits 3
+        // --extractor 64,32 --decoder 64,96` on `standard`.
         let mut flags = TrainConfig::standard();
         flags.model = motion();
         Overrides {
@@ -470,10 +482,20 @@ mod tests {
             judge_stretches: Some(14),
             judge_every: Some(10),
             inits: Some(3),
+            extractor: Some([64, 32]),
+            decoder: Some([64, 96]),
             ..Default::default()
         }
         .apply(&mut flags);
         assert_eq!(minute, flags);
+        assert_eq!(
+            (
+                minute.model.extractor,
+                minute.model.hidden,
+                minute.model.latent
+            ),
+            ([64, 32], 32, 8)
+        );
         // `--float-limit L` sets the ceiling, 0 turns it off again; the
         // model keeps its name.
         let mut held = minute.clone();
