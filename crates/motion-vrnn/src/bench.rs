@@ -19,11 +19,13 @@ pub const FRAMES: usize = 128;
 pub const CONDITIONED: &str = "motion+category";
 
 /// The bench's name for what `cargo xtask train` trains by default (the
-/// `minute` preset): [`CONDITIONED`] with the pace as a condition and the
-/// feed rounds drawn at the sampling temperature.
+/// `minute` preset): [`CONDITIONED`] with the pace as a condition, the
+/// feed rounds drawn at the sampling temperature, and a wider extractor and
+/// decoder ([`crate::options::MINUTE_EXTRACTOR`],
+/// [`crate::options::MINUTE_DECODER`]).
 pub const DEFAULT: &str = "minute";
 
-/// The bench's name for [`DEFAULT`] twice as wide ([`Config::widened`];
+/// The bench's name for [`DEFAULT`] with every size twice the paper's ([`Config::widened`];
 /// `cargo xtask train --extractor 64,64 --hidden 64 --latent 16 --decoder
 /// 64,96`): timed when named, not in the default list.
 pub const WIDE: &str = "minute-wide";
