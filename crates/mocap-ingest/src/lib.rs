@@ -5,7 +5,7 @@
 //! The pipeline for one take is: read the file ([`bvh`] or [`asf`]) →
 //! forward kinematics to the 19 kept joints ([`skeleton::JOINT_NAMES`]) →
 //! resample to 30 fps ([`fps`]) → 58 local-frame features ([`features`]).
-//! [`process`] runs it; [`source`] lists and reads whole collections.
+//! [`process_take`] runs it; [`source`] lists and reads whole collections.
 //! Formats, units and the feature layout are documented in `docs/features.md`.
 
 pub mod asf;

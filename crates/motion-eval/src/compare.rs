@@ -189,7 +189,7 @@ pub const KEPT: &str = "<!-- kept by compare -->";
 const GOALS_HEADING: &str = "## Goals met (issue 11)";
 
 /// `page` with every [`KEPT`] section of `old`, in their order, put back
-/// before `page`'s [`GOALS_HEADING`] (at its end without one).
+/// before `page`'s `GOALS_HEADING` (at its end without one).
 pub fn keep_sections(page: &str, old: &str) -> String {
     let lines: Vec<&str> = old.lines().collect();
     let mut kept = String::new();

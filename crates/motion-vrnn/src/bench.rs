@@ -349,7 +349,7 @@ pub fn speedups(rounds: &[Round]) -> Vec<SpeedUp> {
 /// of [`bench_models`] when empty) at each batch size on random windows,
 /// and the sampling time; with `b.reference`, also through candle ops
 /// (autograd); with `b.pytorch = (python, script)`, every model against
-/// PyTorch eager on the paper's model ([`against_pytorch`]), over
+/// PyTorch eager on the paper's model (`against_pytorch`), over
 /// `b.rounds` rounds.
 pub fn report(b: &Bench, device: &Device, out: &mut dyn FnMut(&str)) -> Result<(), TrainError> {
     let every = bench_models();

@@ -18,7 +18,7 @@
 //!   and the [`generate::Judge`] that chooses checkpoints by them.
 //! - [`optim`]: Adam with saveable state; gradient-norm clipping.
 //! - [`options`]: overrides of a training configuration, one per option.
-//! - [`bench`]: the speed of a training step and of sampling.
+//! - [`mod@bench`]: the speed of a training step and of sampling.
 //! - [`train`]: the training loop, checkpoints, resume, metrics.
 //! - [`rng`]: the seeded RNG behind every random number (and the
 //!   reparameterisation noise).

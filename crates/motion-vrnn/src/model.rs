@@ -138,7 +138,7 @@ pub struct Parts {
     pub rollouts_at_temperature: bool,
     /// The gradient flows through the fed-back frames: fed back to every
     /// depth on the model's own weights by the fused pass with its backward
-    /// ([`rollout::RolloutOp`]; the step loop [`Vrnn::fed_in_sequence`] off
+    /// (`rollout::RolloutOp`; the step loop `Vrnn::fed_in_sequence` off
     /// the CPU) instead of the fused pass on detached ones, so the losses
     /// after a fed frame reach what made it. A training step costs about
     /// 1.4× the default's (`docs/training.md`, "The gradient through the

@@ -668,7 +668,7 @@ pub fn contact_loss(
 /// For each of [`TOES`], whether the contact loss counts it planted in row
 /// `r` of sequences of `frames` rows read raw through `raw(row, feature)`
 /// (`f` features): below [`CONTACT_UNITS`] and, with `still` (units a
-/// frame), sliding less than that from the frame before ([`real_slides`];
+/// frame), sliding less than that from the frame before (`real_slides`;
 /// a sequence's first frame takes its second's slide; a one-frame sequence
 /// is judged by height alone).
 pub fn planted(

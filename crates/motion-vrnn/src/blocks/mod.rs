@@ -5,11 +5,11 @@
 //! written once. On the CPU each block runs as one candle custom op over
 //! plain `f32` slices (the `gemm` crate for products, vectorisable
 //! element-wise loops) with a hand-written backward; on any other device, or
-//! inside [`reference`], it runs as a composition of candle ops, whose
+//! inside [`fn@reference`], it runs as a composition of candle ops, whose
 //! autograd is the oracle the fused backward is tested against
 //! (`tests/blocks.rs`: autograd and finite differences, block by block).
 //!
-//! - [`linear`]: `act(x · Wᵀ + b)` over all rows at once (every layer that does
+//! - [`mod@linear`]: `act(x · Wᵀ + b)` over all rows at once (every layer that does
 //!   not depend on the recurrence runs once over `batch × T` rows).
 //! - [`latent_lstm`]: the part that cannot be batched: the VRNN recurrence
 //!   over a whole sequence (posterior from `h`, reparameterised `z`, LSTM
