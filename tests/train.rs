@@ -110,6 +110,18 @@ fn a_learning_rate_that_cannot_train_is_refused() {
     let mut cfg = tiny_config();
     cfg.model.latent = 0;
     refused(cfg, "latent size (--latent) must be at least 1");
+    let mut cfg = tiny_config();
+    cfg.model.hidden = 0;
+    refused(cfg, "hidden size (--hidden) must be at least 1");
+    let mut cfg = tiny_config();
+    cfg.model.extractor[1] = 0;
+    refused(
+        cfg,
+        "extractor's layer sizes (--extractor) must be at least 1",
+    );
+    let mut cfg = tiny_config();
+    cfg.model.decoder[0] = 0;
+    refused(cfg, "decoder's layer sizes (--decoder) must be at least 1");
     for f in [0.0, -0.5, 1.5, f64::NAN] {
         let cfg = TrainConfig {
             lr_final: Some(f),

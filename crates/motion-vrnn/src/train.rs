@@ -764,10 +764,24 @@ pub fn train(
             "the final learning rate share (--lr-final) must be in (0, 1], got {f}"
         )));
     }
-    if config.model.latent == 0 {
-        return Err(TrainError::Invalid(
-            "the latent size (--latent) must be at least 1".into(),
-        ));
+    let m = &config.model;
+    for (what, size) in [
+        ("latent size (--latent)", m.latent),
+        ("LSTM hidden size (--hidden)", m.hidden),
+        (
+            "feature extractor's layer sizes (--extractor)",
+            m.extractor[0].min(m.extractor[1]),
+        ),
+        (
+            "decoder's layer sizes (--decoder)",
+            m.decoder[0].min(m.decoder[1]),
+        ),
+    ] {
+        if size == 0 {
+            return Err(TrainError::Invalid(format!(
+                "the {what} must be at least 1"
+            )));
+        }
     }
     let val = data.splits.get("val").filter(|w| w.n > 0);
     if resume && !run.is_dir() {
