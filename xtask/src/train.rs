@@ -107,6 +107,9 @@ pub struct TrainArgs {
     /// Judge and keep as `best` a moving average of the weights with this decay per step, e.g. 0.95 (0: off; needs --select generation; docs/training.md).
     #[arg(long)]
     pub average: Option<f64>,
+    /// Also train on the windows' left-right mirror images, each window mirrored every other epoch.
+    #[arg(long)]
+    pub mirror: bool,
     /// KL warm-up epochs (0: off).
     #[arg(long)]
     pub kl_warmup: Option<usize>,
@@ -193,7 +196,7 @@ impl TrainArgs {
             latent hidden extractor decoder epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
             judge_stretches condition condition_dropout rollouts_at_temperature float_limit
             contact_speed swing_weight fed_jerk_weight rollout_gradient last_round_gradient inits
-            feed_run average
+            feed_run average mirror
         }
     }
 }

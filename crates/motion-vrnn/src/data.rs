@@ -71,6 +71,67 @@ impl Windows {
     }
 }
 
+/// Where each feature of the left–right mirror image of a frame comes
+/// from: `(source, sign)` per feature, by name (`docs/features.md`,
+/// "Mirrored windows"). A joint's mirror is its other side's (`Left*` ↔
+/// `Right*`, the others themselves) with its local x negated, since the
+/// mirrored figure's local frame is the original's reflected; `vel_x` and
+/// `ang_vel_y` change sign, `root_y` and `vel_z` stay. `None` when a
+/// feature has no mirror among `features` (an unknown name, or a side
+/// without its other).
+pub fn mirror_map(features: &[String]) -> Option<Vec<(usize, f32)>> {
+    features
+        .iter()
+        .map(|name| {
+            let sign = if name.ends_with("_x") || name == "ang_vel_y" {
+                -1.0
+            } else {
+                1.0
+            };
+            let other = if let Some(rest) = name.strip_prefix("Left") {
+                format!("Right{rest}")
+            } else if let Some(rest) = name.strip_prefix("Right") {
+                format!("Left{rest}")
+            } else {
+                name.clone()
+            };
+            let known = ["root_y", "vel_x", "vel_z", "ang_vel_y"].contains(&name.as_str())
+                || ["_x", "_y", "_z"].iter().any(|c| name.ends_with(c));
+            let source = features.iter().position(|f| *f == other)?;
+            known.then_some((source, sign))
+        })
+        .collect()
+}
+
+impl Windows {
+    /// The windows' left–right mirror images ([`mirror_map`]), normalised
+    /// with the same `stats`: a mirrored walk is a walk with the other foot
+    /// first, turning the other way.
+    pub fn mirrored(&self, stats: &Stats) -> Result<Windows, DataError> {
+        let map = mirror_map(&stats.features)
+            .filter(|m| m.len() == self.features)
+            .ok_or_else(|| {
+                DataError::Invalid(
+                    "the dataset's features have no left-right mirror (docs/features.md)".into(),
+                )
+            })?;
+        let (mean, std): (Vec<f32>, Vec<f32>) = (
+            stats.mean.iter().map(|&v| v as f32).collect(),
+            stats.std.iter().map(|&v| v as f32).collect(),
+        );
+        let data = self
+            .data
+            .chunks_exact(self.features)
+            .flat_map(|row| {
+                map.iter()
+                    .enumerate()
+                    .map(|(i, &(j, sign))| (sign * (row[j] * std[j] + mean[j]) - mean[i]) / std[i])
+            })
+            .collect();
+        Ok(Windows { data, ..*self })
+    }
+}
+
 /// A loaded dataset directory.
 #[derive(Clone, Debug)]
 pub struct Dataset {
@@ -288,4 +349,129 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
         splits: out,
         categories,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mocap_ingest::features::{compute_features, feature_names};
+    use mocap_ingest::{Pose, JOINT_NAMES};
+
+    /// A figure whose sides differ (arms raised unevenly, one knee bent),
+    /// turning and walking: frame `t` of 12.
+    fn pose(t: usize) -> Pose {
+        let rest: [[f64; 3]; 19] = [
+            [0.0, 17.0, 0.0],
+            [-1.8, 16.0, 0.2],
+            [-2.0, 9.0, 1.5],
+            [-2.1, 1.5, 0.0],
+            [-2.2, 0.2, 2.0],
+            [1.9, 16.1, -0.1],
+            [2.2, 9.2, -0.4],
+            [2.0, 1.4, -0.8],
+            [2.3, 0.3, 1.2],
+            [0.1, 20.0, -0.2],
+            [0.0, 23.0, 0.1],
+            [0.2, 27.0, 0.3],
+            [0.3, 29.5, 0.9],
+            [-3.0, 26.0, 0.0],
+            [-5.5, 27.5, 2.0],
+            [-6.0, 30.0, 4.0],
+            [3.1, 25.8, 0.2],
+            [5.0, 22.0, -0.5],
+            [5.2, 18.5, 1.0],
+        ];
+        let (a, t) = (0.1 + 0.07 * t as f64, t as f64);
+        let (c, s) = (a.cos(), a.sin());
+        rest.map(|[x, y, z]| {
+            [
+                c * x + s * z + 0.4 * t,
+                y + 0.05 * t,
+                -s * x + c * z + 0.9 * t,
+            ]
+        })
+    }
+
+    /// The world reflected in x, each side's joint in its other's place.
+    fn reflected(p: &Pose) -> Pose {
+        let other = |j: usize| {
+            let name = JOINT_NAMES[j];
+            let swapped = match name.strip_prefix("Left") {
+                Some(rest) => format!("Right{rest}"),
+                None => name.replacen("Right", "Left", 1),
+            };
+            JOINT_NAMES.iter().position(|n| **n == swapped).unwrap()
+        };
+        std::array::from_fn(|j| {
+            let [x, y, z] = p[other(j)];
+            [-x, y, z]
+        })
+    }
+
+    #[test]
+    fn the_mirror_map_is_the_features_of_the_reflected_figure() {
+        let names = feature_names();
+        let map = mirror_map(&names).expect("the 58 features have a mirror");
+        assert_eq!(map[0], (0, 1.0), "root_y");
+        assert_eq!(map[1], (13, -1.0), "LeftUpLeg_x from RightUpLeg_x");
+        assert_eq!(map[14], (2, 1.0), "RightUpLeg_y from LeftUpLeg_y");
+        assert_eq!(map[25], (25, -1.0), "Spine_x");
+        assert_eq!(map[55..], [(55, -1.0), (56, 1.0), (57, -1.0)]);
+        let poses: Vec<Pose> = (0..12).map(pose).collect();
+        let mirrored: Vec<Pose> = poses.iter().map(reflected).collect();
+        let (f, g) = (
+            compute_features(&poses).unwrap(),
+            compute_features(&mirrored).unwrap(),
+        );
+        for (a, b) in f.iter().zip(&g) {
+            for (i, &(j, sign)) in map.iter().enumerate() {
+                let want = sign as f64 * a[j];
+                assert!(
+                    (b[i] - want).abs() < 1e-9,
+                    "{}: {} vs {want}",
+                    names[i],
+                    b[i]
+                );
+            }
+        }
+        // The figure turns, so the turn's sign is tested on non-zero values.
+        assert!(f[3][57].abs() > 0.05);
+    }
+
+    #[test]
+    fn mirrored_windows_are_normalised_and_twice_mirrored_is_the_same() {
+        let features = feature_names();
+        let n = features.len();
+        let stats = Stats {
+            mean: (0..n).map(|i| 0.5 + i as f64 * 0.1).collect(),
+            std: (0..n).map(|i| 1.0 + i as f64 * 0.05).collect(),
+            std_raw: vec![1.0; n],
+            std_floor: 0.0,
+            floored: Vec::new(),
+            count: 6,
+            features,
+        };
+        let w = Windows {
+            data: (0..2 * 3 * n)
+                .map(|i| ((i * 37) % 11) as f32 * 0.3 - 1.5)
+                .collect(),
+            n: 2,
+            length: 3,
+            features: n,
+        };
+        let m = w.mirrored(&stats).unwrap();
+        // Hand-computed: LeftUpLeg_x (1) from RightUpLeg_x (13), negated.
+        let raw13 = w.data[13] * stats.std[13] as f32 + stats.mean[13] as f32;
+        let want = (-raw13 - stats.mean[1] as f32) / stats.std[1] as f32;
+        assert!((m.data[1] - want).abs() < 1e-5);
+        let back = m.mirrored(&stats).unwrap();
+        for (a, b) in w.data.iter().zip(&back.data) {
+            assert!((a - b).abs() < 1e-4, "{a} vs {b}");
+        }
+        let unknown = Stats {
+            features: vec!["a".into(); n],
+            ..stats
+        };
+        assert!(w.mirrored(&unknown).is_err());
+    }
 }

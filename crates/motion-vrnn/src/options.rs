@@ -214,6 +214,8 @@ pub struct Overrides {
     /// Decay of the weights' moving average the judge keeps
     /// ([`TrainConfig::average`]; 0: off).
     pub average: Option<f64>,
+    /// Train on the windows' mirror images too ([`TrainConfig::mirror`]).
+    pub mirror: bool,
 }
 
 impl Overrides {
@@ -312,6 +314,9 @@ impl Overrides {
         }
         if let Some(v) = self.average {
             cfg.average = (v != 0.0).then_some(v);
+        }
+        if self.mirror {
+            cfg.mirror = true;
         }
         match self.condition {
             Some(ConditionOn::None) => {

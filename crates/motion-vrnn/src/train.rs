@@ -69,6 +69,11 @@ pub struct TrainConfig {
     /// [`Select::Generation`]); None: the weights.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub average: Option<f64>,
+    /// Train on each window and on its left–right mirror image in turn
+    /// (`--mirror`; [`crate::data::Windows::mirrored`]): in epoch `e`
+    /// window `i` is mirrored when `i + e` is odd.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub mirror: bool,
 }
 
 /// Epochs each initialisation is trained before they are compared
@@ -163,6 +168,7 @@ impl TrainConfig {
             inits: None,
             feed_run: None,
             average: None,
+            mirror: false,
         }
     }
 
@@ -838,9 +844,20 @@ pub fn train(
             run.display()
         )));
     }
+    let both = if config.mirror {
+        let mut both = train
+            .mirrored(stats)
+            .map_err(|e| TrainError::Invalid(e.to_string()))?;
+        both.data.splice(0..0, train.data.iter().copied());
+        both.n += train.n;
+        Some(both)
+    } else {
+        None
+    };
     let epochs = Epochs {
         data,
         train,
+        both,
         val,
         config,
         run,
@@ -974,6 +991,9 @@ pub fn train(
 struct Epochs<'a> {
     data: &'a Dataset,
     train: &'a Windows,
+    /// The training windows and, with `--mirror`, their mirror images
+    /// after them (`2n` windows).
+    both: Option<Windows>,
     val: Option<&'a Windows>,
     config: &'a TrainConfig,
     run: &'a Path,
@@ -1001,7 +1021,13 @@ impl Epochs<'_> {
         let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
         for chunk in perm.chunks(config.batch) {
             let step = adam.step + 1;
-            let x = train.batch(chunk, device)?;
+            let x = match &self.both {
+                Some(both) => {
+                    let flip = |i: usize| i + train.n * ((i + epoch) % 2);
+                    both.batch(&chunk.iter().map(|&i| flip(i)).collect::<Vec<_>>(), device)?
+                }
+                None => train.batch(chunk, device)?,
+            };
             let eps = noise(
                 config.seed,
                 step,
