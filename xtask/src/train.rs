@@ -107,7 +107,7 @@ pub struct TrainArgs {
     /// Judge and keep as `best` a moving average of the weights with this decay per step, e.g. 0.95 (0: off; needs --select generation; docs/training.md).
     #[arg(long)]
     pub average: Option<f64>,
-    /// Also train on the windows' left-right mirror images, each window mirrored every other epoch.
+    /// Also train on the windows' left-right mirror images, each window mirrored every other epoch (measured, not adopted; docs/training.md).
     #[arg(long)]
     pub mirror: bool,
     /// KL warm-up epochs (0: off).
