@@ -95,8 +95,8 @@ pub fn mirror_map(features: &[String]) -> Option<Vec<(usize, f32)>> {
             } else {
                 name.clone()
             };
-            let known = ["root_y", "vel_x", "vel_z", "ang_vel_y"].contains(&name.as_str())
-                || ["_x", "_y", "_z"].iter().any(|c| name.ends_with(c));
+            // Every feature is a coordinate (`root_y`, `vel_x`, … too).
+            let known = ["_x", "_y", "_z"].iter().any(|c| name.ends_with(c));
             let source = features.iter().position(|f| *f == other)?;
             known.then_some((source, sign))
         })

@@ -845,12 +845,17 @@ pub fn train(
         )));
     }
     let both = if config.mirror {
-        let mut both = train
+        let mirrored = train
             .mirrored(stats)
             .map_err(|e| TrainError::Invalid(e.to_string()))?;
-        both.data.splice(0..0, train.data.iter().copied());
-        both.n += train.n;
-        Some(both)
+        let mut data = Vec::with_capacity(2 * train.data.len());
+        data.extend_from_slice(&train.data);
+        data.extend(mirrored.data);
+        Some(Windows {
+            data,
+            n: 2 * train.n,
+            ..*train
+        })
     } else {
         None
     };
