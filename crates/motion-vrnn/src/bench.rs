@@ -30,6 +30,32 @@ pub const DEFAULT: &str = "minute";
 /// 64,96`): timed when named, not in the default list.
 pub const WIDE: &str = "minute-wide";
 
+/// The CPU a bench ran on, for its header: the model name `/proc/cpuinfo`
+/// gives (where there is one) and the width of the matrix products'
+/// kernel, so that timings from different machines are not confused.
+pub fn cpu_description() -> String {
+    let name = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|info| cpu_model_name(&info).map(str::to_owned))
+        .unwrap_or_else(|| std::env::consts::ARCH.to_owned());
+    let lanes = if crate::blocks::kernels::has_avx512() {
+        "16 lanes, AVX-512"
+    } else if crate::blocks::kernels::has_avx2_fma() {
+        "8 lanes, AVX2 and FMA"
+    } else {
+        "`gemm`"
+    };
+    format!("{name}; products in {lanes}")
+}
+
+/// The first `model name` of a `/proc/cpuinfo` text.
+fn cpu_model_name(info: &str) -> Option<&str> {
+    info.lines().find_map(|line| {
+        let (key, value) = line.split_once(':')?;
+        (key.trim() == "model name").then(|| value.trim())
+    })
+}
+
 /// The models `bench-train` times: every model of [`crate::model::MODELS`],
 /// then [`CONDITIONED`] and [`DEFAULT`].
 pub fn bench_models() -> Vec<String> {
@@ -366,7 +392,11 @@ pub fn report(b: &Bench, device: &Device, out: &mut dyn FnMut(&str)) -> Result<(
             out(&format!("round {round} of {rounds}"));
         }
         out(&format!(
-            "training step (T = {FRAMES}, forward + backward + Adam) on {device:?}, {} rayon threads; median and min of {steps} steps after 2 warm-up steps",
+            "training step (T = {FRAMES}, forward + backward + Adam) on {device:?}{}, {} rayon threads; median and min of {steps} steps after 2 warm-up steps",
+            match device {
+                Device::Cpu => format!(" ({})", cpu_description()),
+                _ => String::new(),
+            },
             rayon::current_num_threads()
         ));
         out(&format!(
@@ -482,6 +512,14 @@ fn against_pytorch(rows: &[SpeedUp], out: &mut dyn FnMut(&str)) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_cpu_is_named_from_the_first_model_name_line() {
+        let info = "processor\t: 0\nvendor_id\t: GenuineIntel\nmodel\t\t: 167\nmodel name\t: Intel(R) Xeon(R) Processor\n\nprocessor\t: 1\nmodel name\t: Other\n";
+        assert_eq!(cpu_model_name(info), Some("Intel(R) Xeon(R) Processor"));
+        assert_eq!(cpu_model_name("processor : 0\nmodel : 167\n"), None);
+        assert!(cpu_description().contains("; products in "));
+    }
 
     #[test]
     fn the_wide_default_is_timed_when_named_and_differs_only_in_its_sizes() {
