@@ -921,20 +921,16 @@ impl Vrnn {
             },
         );
         let pre = match fed {
-            None => Lin {
+            None => vec![Lin {
                 w: Tensor::cat(&[&enc_x.w, &gates_x.w], 0)?,
                 b: Tensor::cat(&[&enc_x.b, &gates_x.b], 0)?,
             }
-            .forward(feat, Act::None)?,
-            Some(f) => Tensor::cat(
-                &[
-                    enc_x.forward(feat, Act::None)?,
-                    gates_x.forward(&self.features(f)?, Act::None)?,
-                ],
-                D::Minus1,
-            )?,
+            .forward(feat, Act::None)?],
+            Some(f) => vec![
+                enc_x.forward(feat, Act::None)?,
+                gates_x.forward(&self.features(f)?, Act::None)?,
+            ],
         };
-        let pre = plus(pre, bias.map(|b| &b.pre))?;
         let w = Tensor::cat(
             &[
                 enc.w.narrow(1, e2, h)?.flatten_all()?,
@@ -943,7 +939,8 @@ impl Vrnn {
             ],
             0,
         )?;
-        let s = latent_lstm(&pre, eps, &w, self.dims())?;
+        let pre: Vec<&Tensor> = pre.iter().collect();
+        let s = latent_lstm(&pre, bias.map(|b| &b.pre), eps, &w, self.dims())?;
         Ok(Scan {
             h: s.narrow(D::Minus1, 0, h)?,
             q: s.narrow(D::Minus1, h, 2 * z)?,

@@ -218,8 +218,86 @@ fn latent_lstm_block() {
     let eps = randn(10, &[b, t, dims.latent], 1.0);
     let w = randn(11, &[dims.weights()], 0.4);
     check("latent lstm", &[pre, eps, w], &[0, 2], 1e-5, 10, |x| {
-        blocks::latent_lstm(&x[0], &x[1], &x[2], dims).unwrap()
+        blocks::latent_lstm(&[&x[0]], None, &x[1], &x[2], dims).unwrap()
     });
+}
+
+#[test]
+fn latent_lstm_block_in_two_blocks_with_rows() {
+    let dims = ScanDims {
+        hidden: 5,
+        latent: 3,
+    };
+    let (b, t) = (4, 7);
+    let enc = randn(20, &[b, t, 2 * dims.latent], 1.0);
+    let gates = randn(21, &[b, t, 4 * dims.hidden], 1.0);
+    let eps = randn(22, &[b, t, dims.latent], 1.0);
+    let w = randn(23, &[dims.weights()], 0.4);
+    for (name, rb) in [("rows per sequence", b), ("one row for all", 1)] {
+        let rows = randn(24, &[rb, 1, dims.pre()], 0.5);
+        let inputs = [enc.clone(), gates.clone(), rows, eps.clone(), w.clone()];
+        check(name, &inputs, &[0, 1, 2, 4], 1e-5, 6, |x| {
+            blocks::latent_lstm(&[&x[0], &x[1]], Some(&x[2]), &x[3], &x[4], dims).unwrap()
+        });
+    }
+}
+
+#[test]
+fn latent_lstm_reads_blocks_and_rows_to_the_bit() {
+    // The scan reading `pre` in two blocks and adding the rows itself gives
+    // the bits of `cat`, then `add_rows`, then the scan: output and every
+    // gradient (the default model's training depends on it).
+    let dims = ScanDims {
+        hidden: 6,
+        latent: 2,
+    };
+    let (b, t) = (3, 9);
+    let (enc, gates) = (
+        randn(30, &[b, t, 2 * dims.latent], 1.0),
+        randn(31, &[b, t, 4 * dims.hidden], 1.0),
+    );
+    let (eps, w) = (
+        randn(32, &[b, t, dims.latent], 1.0),
+        randn(33, &[dims.weights()], 0.4),
+    );
+    for rb in [b, 1] {
+        let rows = randn(34, &[rb, 1, dims.pre()], 0.5);
+        let vars = [&enc, &gates, &rows, &w];
+        let run = |fused_in: bool| {
+            let (e, g, r) = (enc.as_tensor(), gates.as_tensor(), rows.as_tensor());
+            let out = if fused_in {
+                blocks::latent_lstm(&[e, g], Some(r), eps.as_tensor(), w.as_tensor(), dims)
+            } else {
+                let pre = Tensor::cat(&[e, g], 2).unwrap();
+                let pre = blocks::add_rows(&pre, r, Act::None).unwrap();
+                blocks::latent_lstm(&[&pre], None, eps.as_tensor(), w.as_tensor(), dims)
+            }
+            .unwrap();
+            let grads = project(&out).backward().unwrap();
+            let mut all = vec![values(&out)];
+            all.extend(vars.iter().map(|v| values(grads.get(v).expect("gradient"))));
+            all
+        };
+        let (inside, outside) = (run(true), run(false));
+        for (k, (a, o)) in inside.iter().zip(&outside).enumerate() {
+            let same =
+                a.len() == o.len() && a.iter().zip(o).all(|(x, y)| x.to_bits() == y.to_bits());
+            assert!(same, "rows {rb}: part {k} differs");
+        }
+    }
+    // Blocks or rows that do not fit are refused.
+    let bad = randn(35, &[b, 1, dims.pre() + 1], 0.5);
+    let (e, g) = (enc.as_tensor(), gates.as_tensor());
+    assert!(blocks::latent_lstm(
+        &[e, g],
+        Some(bad.as_tensor()),
+        eps.as_tensor(),
+        w.as_tensor(),
+        dims
+    )
+    .is_err());
+    assert!(blocks::latent_lstm(&[g, e], None, eps.as_tensor(), w.as_tensor(), dims).is_err());
+    assert!(blocks::latent_lstm(&[], None, eps.as_tensor(), w.as_tensor(), dims).is_err());
 }
 
 #[test]

@@ -46,30 +46,82 @@ impl ScanDims {
 }
 
 /// The VRNN recurrence over whole sequences (see the module docs).
-/// `pre: [B, T, 2Z + 4H]`, `eps: [B, T, Z]`, `w`: the flat recurrent weights
-/// of [`ScanDims::weights`] (row-major, rows of `W_e` are μ then σ, gates in
-/// the order i, f, g, o). Returns `[B, T, H + 3Z]`.
-pub fn latent_lstm(pre: &Tensor, eps: &Tensor, w: &Tensor, dims: ScanDims) -> Result<Tensor> {
-    let (b, t, p) = pre.dims3()?;
-    if p != dims.pre() || eps.dims() != [b, t, dims.latent] || w.dims() != [dims.weights()] {
+/// `pre`: `[B, T, 2Z + 4H]` as one block, or as two, its posterior part
+/// `[B, T, 2Z]` and its gates' part `[B, T, 4H]` (what two products made:
+/// read in place, with no `cat` in the graph); `rows`: `[B, 1, 2Z + 4H]`
+/// added to every step of each sequence (`[1, 1, ·]`: the same for all),
+/// as [`add_rows`](super::add_rows) would add them, bit for bit, without
+/// the sum as a node of the graph; `eps: [B, T, Z]`; `w`: the flat
+/// recurrent weights of [`ScanDims::weights`] (row-major, rows of `W_e`
+/// are μ then σ, gates in the order i, f, g, o). Returns `[B, T, H + 3Z]`.
+pub fn latent_lstm(
+    pre: &[&Tensor],
+    rows: Option<&Tensor>,
+    eps: &Tensor,
+    w: &Tensor,
+    dims: ScanDims,
+) -> Result<Tensor> {
+    let (b, t, _) = match pre.first() {
+        Some(p) => p.dims3()?,
+        None => candle_core::bail!("latent_lstm: no pre"),
+    };
+    let widths: Vec<usize> = pre
+        .iter()
+        .map(|p| p.dim(D::Minus1))
+        .collect::<Result<_>>()?;
+    let fits = match widths[..] {
+        [p] => p == dims.pre(),
+        [e, g] => e == 2 * dims.latent && g == 4 * dims.hidden,
+        _ => false,
+    };
+    let rows_fit = rows
+        .is_none_or(|r| matches!(r.dims(), &[rb, 1, p] if (rb == b || rb == 1) && p == dims.pre()));
+    if !fits
+        || !rows_fit
+        || pre.iter().any(|p| p.dims()[..2] != [b, t])
+        || eps.dims() != [b, t, dims.latent]
+        || w.dims() != [dims.weights()]
+    {
         candle_core::bail!(
-            "latent_lstm: pre {:?}, eps {:?}, w {:?} do not fit {dims:?}",
-            pre.shape(),
+            "latent_lstm: pre {:?}, rows {:?}, eps {:?}, w {:?} do not fit {dims:?}",
+            pre.iter().map(|p| p.dims()).collect::<Vec<_>>(),
+            rows.map(|r| r.dims()),
             eps.shape(),
             w.shape()
         );
     }
-    if fused(pre) {
-        let op = ScanOp {
-            dims,
-            cache: Mutex::new(None),
-            zeros: vec![0.0; dims.hidden],
+    if !fused(pre[0]) {
+        let joint = match pre {
+            [p] => (*p).clone(),
+            _ => Tensor::cat(pre, D::Minus1)?,
         };
-        return pre
-            .contiguous()?
-            .apply_op3(&eps.contiguous()?, &w.contiguous()?, op);
+        let joint = match rows {
+            Some(r) => joint.broadcast_add(r)?,
+            None => joint,
+        };
+        return reference(&joint, eps, w, dims);
     }
-    reference(pre, eps, w, dims)
+    // The rows ride on the weights' input: one tensor, split back in `bwd`.
+    let (w, shared) = match rows {
+        Some(r) => (
+            Tensor::cat(&[w, &r.flatten_all()?], 0)?,
+            Some(r.dim(0)? == 1),
+        ),
+        None => (w.clone(), None),
+    };
+    let w = w.contiguous()?;
+    match pre {
+        [p] => {
+            let op = ScanOp::new(dims, None, shared);
+            p.contiguous()?.apply_op3(&eps.contiguous()?, &w, op)
+        }
+        [e, g] => {
+            let eps = eps.flatten_all()?.to_vec1::<f32>()?;
+            let op = ScanOp::new(dims, Some(eps), shared);
+            e.contiguous()?.apply_op3(&g.contiguous()?, &w, op)
+        }
+        _ => candle_core::bail!("latent_lstm: pre in {} blocks", pre.len()),
+    }
 }
 
 /// [`latent_lstm`] in candle ops.
@@ -190,6 +242,77 @@ struct ScanOp {
     cache: Mutex<Option<Cache>>,
     /// `H` zeros (the cell before the first step).
     zeros: Vec<f32>,
+    /// With `pre` in two blocks (the op's first two inputs), the noise,
+    /// which is otherwise the second input.
+    eps: Option<Vec<f32>>,
+    /// Whether rows follow the weights in the third input, and whether one
+    /// row serves every sequence.
+    shared: Option<bool>,
+}
+
+impl ScanOp {
+    fn new(dims: ScanDims, eps: Option<Vec<f32>>, shared: Option<bool>) -> ScanOp {
+        ScanOp {
+            dims,
+            cache: Mutex::new(None),
+            zeros: vec![0.0; dims.hidden],
+            eps,
+            shared,
+        }
+    }
+
+    /// The op's inputs as slices: `pre`'s blocks, the noise, the weights
+    /// and the rows.
+    fn inputs<'a>(&'a self, a: &'a [f32], b: &'a [f32], w: &'a [f32]) -> Inputs<'a> {
+        let (w, rows) = match self.shared {
+            Some(_) => {
+                let (w, r) = w.split_at(self.dims.weights());
+                (w, Some(r))
+            }
+            None => (w, None),
+        };
+        match &self.eps {
+            Some(eps) => Inputs {
+                pre: Pre::Split(a, b),
+                eps,
+                w,
+                rows,
+            },
+            None => Inputs {
+                pre: Pre::Joint(a),
+                eps: b,
+                w,
+                rows,
+            },
+        }
+    }
+}
+
+/// `pre` as [`latent_lstm`] was given it.
+#[derive(Clone, Copy)]
+enum Pre<'a> {
+    Joint(&'a [f32]),
+    Split(&'a [f32], &'a [f32]),
+}
+
+impl<'a> Pre<'a> {
+    /// Row `q` (input order): its posterior part and its gates' part.
+    #[inline(always)]
+    fn row(&self, q: usize, z2: usize, h4: usize) -> (&'a [f32], &'a [f32]) {
+        match *self {
+            Pre::Joint(p) => p[q * (z2 + h4)..(q + 1) * (z2 + h4)].split_at(z2),
+            Pre::Split(e, g) => (&e[q * z2..(q + 1) * z2], &g[q * h4..(q + 1) * h4]),
+        }
+    }
+}
+
+/// What [`forward`] and [`backward`] read.
+struct Inputs<'a> {
+    pre: Pre<'a>,
+    eps: &'a [f32],
+    w: &'a [f32],
+    /// `[B or 1, 2Z + 4H]` added to every step.
+    rows: Option<&'a [f32]>,
 }
 
 /// `[W_z | W_h]` as one `[4H, Z + H]` matrix (applied to `[z | h]`).
@@ -215,14 +338,8 @@ simd_fn! {
 /// together: in the input's order (`s·tt + t`) they were `tt` rows apart, a
 /// power-of-two stride that made every step's rows fight for the same
 /// cache sets.
-fn forward(
-    op: &ScanOp,
-    pre: &[f32],
-    eps: &[f32],
-    w: &[f32],
-    b: usize,
-    tt: usize,
-) -> (Vec<f32>, Cache) {
+fn forward(op: &ScanOp, x: &Inputs, b: usize, tt: usize) -> (Vec<f32>, Cache) {
+    let (eps, w) = (x.eps, x.w);
     let ScanDims {
         hidden: h,
         latent: z,
@@ -238,13 +355,23 @@ fn forward(
     let mut c = vec![0.0f32; n * h];
     let mut tc = vec![0.0f32; n * h];
     // The posterior and gate pre-activations start as `pre`'s two parts
-    // (filled by copying, not zeroed first).
+    // (filled by copying, not zeroed first), plus the rows where given.
     let (mut e, mut g) = (Vec::with_capacity(n * z2), Vec::with_capacity(n * h4));
+    let per = if op.shared == Some(true) { 0 } else { p };
     for t in 0..tt {
         for s in 0..b {
-            let row = &pre[(s * tt + t) * p..(s * tt + t + 1) * p];
-            e.extend_from_slice(&row[..z2]);
-            g.extend_from_slice(&row[z2..]);
+            let (pe, pg) = x.pre.row(s * tt + t, z2, h4);
+            match x.rows {
+                Some(r) => {
+                    let (re, rg) = r[s * per..s * per + p].split_at(z2);
+                    e.extend(pe.iter().zip(re).map(|(a, c)| a + c));
+                    g.extend(pg.iter().zip(rg).map(|(a, c)| a + c));
+                }
+                None => {
+                    e.extend_from_slice(pe);
+                    g.extend_from_slice(pg);
+                }
+            }
         }
     }
     for t in 0..tt {
@@ -324,15 +451,8 @@ simd_fn! {
 /// time-major inside, as in [`forward`]; the weights' gradients sum the
 /// rows in the input's order, as before the rows were reordered).
 #[allow(clippy::too_many_arguments)]
-fn backward(
-    op: &ScanOp,
-    cache: &Cache,
-    dout: &[f32],
-    eps: &[f32],
-    w: &[f32],
-    b: usize,
-    tt: usize,
-) -> (Vec<f32>, Vec<f32>) {
+fn backward(op: &ScanOp, cache: &Cache, dout: &[f32], x: &Inputs, b: usize, tt: usize) -> (Vec<f32>, Vec<f32>) {
+    let (eps, w) = (x.eps, x.w);
     let ScanDims {
         hidden: h,
         latent: z,
@@ -486,40 +606,91 @@ impl CustomOp3 for ScanOp {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
-        let (pre, eps, w) = (
+        let (a, b2, w) = (
             slice(s1, l1, "pre")?,
-            slice(s2, l2, "eps")?,
+            slice(s2, l2, "eps or pre")?,
             slice(s3, l3, "w")?,
         );
         let (b, t, _) = l1.shape().dims3()?;
-        let (out, cache) = forward(self, pre, eps, w, b, t);
+        let (out, cache) = forward(self, &self.inputs(a, b2, w), b, t);
         *self.cache.lock().unwrap_or_else(|p| p.into_inner()) = Some(cache);
         Ok((CpuStorage::F32(out), Shape::from((b, t, self.dims.out()))))
     }
 
     fn bwd(
         &self,
-        pre: &Tensor,
-        eps: &Tensor,
+        a: &Tensor,
+        b2: &Tensor,
         w: &Tensor,
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        let (b, t, _) = pre.dims3()?;
+        let (b, t, _) = a.dims3()?;
         let cached = self.cache.lock().unwrap_or_else(|p| p.into_inner()).take();
-        let (dpre, dw) = with_values(eps, |ev| {
-            with_values(w, |wv| {
-                let cache = match cached {
-                    Some(c) => c,
-                    None => with_values(pre, |pv| Ok(forward(self, pv, ev, wv, b, t).1))?,
-                };
-                with_values(grad, |g| Ok(backward(self, &cache, g, ev, wv, b, t)))
+        let (dpre, dw) = with_values(a, |av| {
+            with_values(b2, |bv| {
+                with_values(w, |wv| {
+                    let x = self.inputs(av, bv, wv);
+                    let cache = match cached {
+                        Some(c) => c,
+                        None => forward(self, &x, b, t).1,
+                    };
+                    with_values(grad, |g| Ok(backward(self, &cache, g, &x, b, t)))
+                })
             })
         })?;
+        // The rows' gradient after the weights', as their input holds them.
+        let dw = match self.shared {
+            Some(shared) => {
+                let mut dw = dw;
+                dw.extend(row_sums(&dpre, [b, t, self.dims.pre()], shared));
+                dw
+            }
+            None => dw,
+        };
+        let dw = Some(tensor(dw, w.dims(), w)?);
+        if self.eps.is_none() {
+            return Ok((Some(tensor(dpre, a.dims(), a)?), None, dw));
+        }
+        let z2 = 2 * self.dims.latent;
+        let (de, dg) = split_columns(&dpre, self.dims.pre(), z2);
         Ok((
-            Some(tensor(dpre, pre.dims(), pre)?),
-            None,
-            Some(tensor(dw, w.dims(), w)?),
+            Some(tensor(de, a.dims(), a)?),
+            Some(tensor(dg, b2.dims(), b2)?),
+            dw,
         ))
     }
+}
+
+/// The rows' gradient: `g: [B, T, n]` summed over the steps of each
+/// sequence (and over the sequences when one row is `shared`), in row
+/// order from zero, each term `0 + g` as [`add_rows`](super::add_rows)'s
+/// backward adds them: the same bits.
+fn row_sums(g: &[f32], [b, t, n]: [usize; 3], shared: bool) -> Vec<f32> {
+    let per = if shared { 0 } else { n };
+    let mut dr = vec![0.0f32; if shared { n } else { b * n }];
+    for s in 0..b {
+        let drs = &mut dr[s * per..s * per + n];
+        for k in 0..t {
+            let at = (s * t + k) * n;
+            for (d, v) in drs.iter_mut().zip(&g[at..at + n]) {
+                *d += 0.0 + v;
+            }
+        }
+    }
+    dr
+}
+
+/// Rows of width `n` cut into their first `left` columns and the rest.
+fn split_columns(v: &[f32], n: usize, left: usize) -> (Vec<f32>, Vec<f32>) {
+    let rows = v.len() / n.max(1);
+    let (mut a, mut b) = (
+        Vec::with_capacity(rows * left),
+        Vec::with_capacity(rows * (n - left)),
+    );
+    for r in v.chunks_exact(n.max(1)) {
+        a.extend_from_slice(&r[..left]);
+        b.extend_from_slice(&r[left..]);
+    }
+    (a, b)
 }
