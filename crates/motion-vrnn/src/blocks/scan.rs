@@ -450,8 +450,14 @@ simd_fn! {
 /// Gradients of `pre` and `w` given the output's gradient `dout` (rows
 /// time-major inside, as in [`forward`]; the weights' gradients sum the
 /// rows in the input's order, as before the rows were reordered).
-#[allow(clippy::too_many_arguments)]
-fn backward(op: &ScanOp, cache: &Cache, dout: &[f32], x: &Inputs, b: usize, tt: usize) -> (Vec<f32>, Vec<f32>) {
+fn backward(
+    op: &ScanOp,
+    cache: &Cache,
+    dout: &[f32],
+    x: &Inputs,
+    b: usize,
+    tt: usize,
+) -> (Vec<f32>, Vec<f32>) {
     let (eps, w) = (x.eps, x.w);
     let ScanDims {
         hidden: h,
@@ -627,7 +633,7 @@ impl CustomOp3 for ScanOp {
     ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
         let (b, t, _) = a.dims3()?;
         let cached = self.cache.lock().unwrap_or_else(|p| p.into_inner()).take();
-        let (dpre, dw) = with_values(a, |av| {
+        let (dpre, mut dw) = with_values(a, |av| {
             with_values(b2, |bv| {
                 with_values(w, |wv| {
                     let x = self.inputs(av, bv, wv);
@@ -640,14 +646,9 @@ impl CustomOp3 for ScanOp {
             })
         })?;
         // The rows' gradient after the weights', as their input holds them.
-        let dw = match self.shared {
-            Some(shared) => {
-                let mut dw = dw;
-                dw.extend(row_sums(&dpre, [b, t, self.dims.pre()], shared));
-                dw
-            }
-            None => dw,
-        };
+        if let Some(shared) = self.shared {
+            dw.extend(row_sums(&dpre, [b, t, self.dims.pre()], shared));
+        }
         let dw = Some(tensor(dw, w.dims(), w)?);
         if self.eps.is_none() {
             return Ok((Some(tensor(dpre, a.dims(), a)?), None, dw));
