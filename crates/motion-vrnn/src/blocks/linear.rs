@@ -312,10 +312,8 @@ fn add_rows_grad(
     let [b, t, n] = dims;
     let per = if shared { 0 } else { n };
     let mut dy = vec![0.0f32; g.len()];
-    let mut dr = vec![0.0f32; if shared { n } else { b * n }];
     for s in 0..b {
         let rs = &r[s * per..s * per + n];
-        let drs = &mut dr[s * per..s * per + n];
         for k in 0..t {
             let at = (s * t + k) * n;
             let (gr, yr, dyr) = (&g[at..at + n], &y[at..at + n], &mut dy[at..at + n]);
@@ -329,11 +327,29 @@ fn add_rows_grad(
                     dyr[j] = 0.0 + gr[j];
                 }
             }
-            for j in 0..n {
-                drs[j] += dyr[j];
+        }
+    }
+    // `0 + dy` is `dy` here, bit for bit: it is `0 + g` already.
+    let dr = row_sums(&dy, dims, shared);
+    (dy, dr)
+}
+}
+
+/// The gradient of rows added to every step (as [`add_rows`] adds them):
+/// `g: [B, T, n]` summed over the steps of each sequence (and over the
+/// sequences when one row is `shared`), in row order from zero, each term
+/// `0 + g` as autograd adds into a zeroed buffer.
+pub(crate) fn row_sums(g: &[f32], [b, t, n]: [usize; 3], shared: bool) -> Vec<f32> {
+    let per = if shared { 0 } else { n };
+    let mut dr = vec![0.0f32; if shared { n } else { b * n }];
+    for s in 0..b {
+        let drs = &mut dr[s * per..s * per + n];
+        for k in 0..t {
+            let at = (s * t + k) * n;
+            for (d, v) in drs.iter_mut().zip(&g[at..at + n]) {
+                *d += 0.0 + v;
             }
         }
     }
-    (dy, dr)
-}
+    dr
 }

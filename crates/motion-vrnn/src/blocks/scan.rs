@@ -16,6 +16,7 @@
 //! posterior sample.
 
 use super::kernels::{dsigma, mm, mm_small, rm, sigma, sigmoid, simd_fn, tanh, tr, Packed};
+use super::linear::row_sums;
 use super::{fused, slice, tensor, with_values};
 use candle_core::{CpuStorage, CustomOp3, Layout, Result, Shape, Tensor, D};
 use std::sync::Mutex;
@@ -661,25 +662,6 @@ impl CustomOp3 for ScanOp {
             dw,
         ))
     }
-}
-
-/// The rows' gradient: `g: [B, T, n]` summed over the steps of each
-/// sequence (and over the sequences when one row is `shared`), in row
-/// order from zero, each term `0 + g` as [`add_rows`](super::add_rows)'s
-/// backward adds them: the same bits.
-fn row_sums(g: &[f32], [b, t, n]: [usize; 3], shared: bool) -> Vec<f32> {
-    let per = if shared { 0 } else { n };
-    let mut dr = vec![0.0f32; if shared { n } else { b * n }];
-    for s in 0..b {
-        let drs = &mut dr[s * per..s * per + n];
-        for k in 0..t {
-            let at = (s * t + k) * n;
-            for (d, v) in drs.iter_mut().zip(&g[at..at + n]) {
-                *d += 0.0 + v;
-            }
-        }
-    }
-    dr
 }
 
 /// Rows of width `n` cut into their first `left` columns and the rest.
