@@ -78,5 +78,5 @@ for ck in last best; do
     || { echo "cache-check: the $ck weights differ when gemm sees an L1 of $fake_size" >&2; exit 1; }
 done
 cmp "$work/real-classifier/classifier.safetensors" "$work/faked-classifier/classifier.safetensors" \
-  || { echo "cache-check: the classifier's weights differ when gemm sees another L1 cache" >&2; exit 1; }
+  || { echo "cache-check: the classifier's weights differ when gemm sees an L1 of $fake_size" >&2; exit 1; }
 echo "the same weights (default model, classifier) with the L1 cache as it is and as $fake_size $fake_ways-way"
