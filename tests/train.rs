@@ -17,6 +17,7 @@ fn roll(frames: usize, context: usize) -> Rollout {
         context,
         seed: 3,
         ask: None,
+        pace_gain: 0.0,
     }
 }
 

@@ -51,6 +51,9 @@ pub struct RunArgs {
     /// Guidance scale of --category (1: as trained; 0: none; above 1: further from the unconditioned).
     #[arg(long, default_value_t = motion_vrnn::generate::GUIDANCE)]
     pub guidance: f64,
+    /// How hard a motion longer than a window is held to its asked pace (a model conditioned on category and pace): every 128 frames it is asked for target + gain × (target − the pace it made) (0: not held).
+    #[arg(long, default_value_t = motion_vrnn::generate::PACE_GAIN)]
+    pub pace_gain: f64,
 }
 
 /// `cargo xtask sample` options.
@@ -165,6 +168,7 @@ impl RunArgs {
             restart: self.restart,
             category: self.category.clone(),
             guidance: self.guidance,
+            pace_gain: self.pace_gain,
         }
     }
 }
@@ -179,9 +183,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         sheet_columns: 5,
     };
     let w = write_samples(&a.run.spec(), &o, &out)?;
-    for warning in &w.warnings {
-        eprintln!("warning: {warning}");
-    }
+    w.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
     println!(
         "sampled {} motions x {} frames from {} ({} epoch {}) in {:.2} s",
         a.n,
@@ -329,9 +331,10 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         motions: a.horizon_motions,
     });
     let report = report(&a.run.spec(), a.contexts, horizon, a.classifier.as_deref())?;
-    for warning in &report.warnings {
-        eprintln!("warning: {warning}");
-    }
+    report
+        .warnings
+        .iter()
+        .for_each(|w| eprintln!("warning: {w}"));
     let json = serde_json::to_string_pretty(&report)? + "\n";
     motion_render::write_file(&out.join("eval.json"), json.as_bytes())?;
     let md = markdown(&report);
@@ -359,9 +362,7 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
     let (_, _, clip) = mocap_ingest::clip_of_file(&a.input, a.asf.clone(), &Default::default())
         .with_context(|| format!("reading {}", a.input.display()))?;
     let run = motion_eval::run::Run::load(&a.run.spec(), &[])?;
-    for warning in &run.warnings {
-        eprintln!("warning: {warning}");
-    }
+    run.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
     let done = continue_clip(&run, &clip.features, &o)
         .with_context(|| format!("continuing {}", a.input.display()))?;
     let (stem, dir) = (

@@ -59,7 +59,7 @@ const CONDITIONED_WHAT: &str = "`motion` trained with `--preset standard` (condi
 pub const MINUTE: &str = "motion-minute";
 
 /// What [`MINUTE`] is, on the results page.
-const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--feed-rounds 0 --rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96`), asked as `motion-category` is and for its window's pace: **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\", \"A wider extractor and decoder\")";
+const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--feed-rounds 0 --rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96`), asked as `motion-category` is and for its window's pace, and held to that pace over a minute (`--pace-gain`, 0.5): **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\", \"A wider extractor and decoder\", \"Holding the pace over a minute\")";
 
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
@@ -555,8 +555,8 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
           seam easing and restarting ([training.md](training.md)) were judged on generation from training \
           contexts and the `test` continuation together; conditioning the `motion` model on the category was \
           chosen on `val` (Fréchet distance and ELBO) and the minute from training contexts, its guidance scale on `val`; the `minute` preset, \
-          now the default, on the minute from training contexts and `val`. Every table reports `test` or, for the minute, all \
-          real windows.\n\n";
+          now the default, on the minute from training contexts and `val`, and its pace gain on the minute from \
+          training contexts and `val`. Every table reports `test` or, for the minute, all real windows.\n\n";
     s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
     for (name, _) in table {
         let what = match name.as_str() {

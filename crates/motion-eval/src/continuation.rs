@@ -162,6 +162,7 @@ pub fn continue_clip(
                 frames: generated + 1,
                 context: k,
                 seed,
+                pace_gain: run.pace_gain,
                 ask: match run.ask {
                     Asking::Nothing => None,
                     Asking::One(_, a) => Some(a),

@@ -123,6 +123,11 @@ pub struct Horizon {
     /// generated set's size (absent in reports written before it).
     #[serde(default)]
     pub frechet_draws: Option<FrechetDraws>,
+    /// The gain the motions were held to their asked pace with
+    /// ([`motion_vrnn::generate::PACE_GAIN`]; absent: not held, or a
+    /// report written before it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pace_gain: Option<f64>,
     /// The stretches, in order.
     pub stretches: Vec<Stretch>,
 }
@@ -223,6 +228,7 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
         frechet_reference: motion_metrics::frechet(&test_summaries, &train_summaries),
         real_pose_spread: Some(real_pose_spread),
         frechet_draws: frechet_draws(&test_summaries, &train_summaries, o.motions, spec.seed),
+        pace_gain: m.held_pace(),
         stretches: out,
     })
 }
@@ -339,13 +345,21 @@ pub fn markdown(h: &Horizon) -> String {
          (train-vs-split reference {:.1}; under it, the range for {REAL_DRAWS} draws of as many training \
          windows). Bone cv in %. Pose spread: how widely the stretches' average \
          poses differ across motions (`docs/metrics.md`), a diagnostic of the Fréchet distance, not a \
-         band; stride (how far the toes swing past each other, generated ÷ real) a diagnostic too.\n\n| stretch |",
+         band; stride (how far the toes swing past each other, generated ÷ real) a diagnostic too.{held}\n\n| stretch |",
         h.motions,
         h.seconds,
         h.frames,
         h.real_windows,
         h.motions.min(h.real_windows / 2),
-        h.frechet_reference
+        h.frechet_reference,
+        held = match h.pace_gain {
+            Some(g) => format!(
+                " Each motion held to its asked pace: every {} frames asked for target + {g} × \
+                 (target − the pace of the frames it made) (`--pace-gain`, `docs/metrics.md`).",
+                motion_vrnn::generate::PACE_EVERY
+            ),
+            None => String::new(),
+        }
     );
     for (name, _) in MEASURES {
         s += &format!(" {name} |");
@@ -462,6 +476,7 @@ mod tests {
             frechet_reference: 70.0,
             real_pose_spread: None,
             frechet_draws: None,
+            pace_gain: None,
             stretches: vec![Stretch {
                 start_s: 0.0,
                 generated: stretch,
@@ -486,6 +501,24 @@ mod tests {
         assert_eq!(frechet_draws_range(&h), "");
         h.frechet_draws = Some(f);
         assert_eq!(frechet_draws_range(&h), "5 train: 25.0–25.0");
+    }
+
+    #[test]
+    fn the_table_says_when_motions_were_held_to_their_pace() {
+        let mut h = horizon(stats(1.0), 60.0);
+        assert!(!markdown(&h).contains("held to its asked pace"));
+        let json = serde_json::to_value(&h).expect("serialises");
+        assert!(json.get("pace_gain").is_none(), "absent when not held");
+        h.pace_gain = Some(0.5);
+        let md = markdown(&h);
+        assert!(
+            md.contains("held to its asked pace: every 128 frames"),
+            "{md}"
+        );
+        assert!(md.contains("target + 0.5 × (target −"), "{md}");
+        let back: Horizon =
+            serde_json::from_value(serde_json::to_value(&h).expect("serialises")).expect("reads");
+        assert_eq!(back.pace_gain, Some(0.5));
     }
 
     #[test]

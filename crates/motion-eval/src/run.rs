@@ -45,6 +45,9 @@ pub struct RunSpec {
     pub category: Option<String>,
     /// Guidance scale of the category ([`motion_vrnn::Config::condition`]).
     pub guidance: f64,
+    /// How hard a long motion is held to its asked pace
+    /// ([`generate::PACE_GAIN`]; 0: not at all).
+    pub pace_gain: f64,
 }
 
 impl RunSpec {
@@ -64,6 +67,7 @@ impl RunSpec {
             restart: None,
             category: None,
             guidance: generate::GUIDANCE,
+            pace_gain: generate::PACE_GAIN,
         }
     }
 }
@@ -89,6 +93,9 @@ pub struct Run {
     /// Whether `--category` was given (a clip continued by a conditioned
     /// model asks for no category unless told one).
     pub asked_explicitly: bool,
+    /// How hard long motions are held to their asked pace
+    /// ([`RunSpec::pace_gain`]).
+    pub pace_gain: f64,
 }
 
 /// `--category own`: each motion asks for the category of the window it
@@ -148,6 +155,12 @@ impl Run {
                 spec.guidance
             )));
         }
+        if !(spec.pace_gain.is_finite() && spec.pace_gain >= 0.0) {
+            return Err(EvalError::Invalid(format!(
+                "--pace-gain must be 0 or more, got {}",
+                spec.pace_gain
+            )));
+        }
         let invalid = |e: String| EvalError::Invalid(format!("--category: {}: {e}", ck.display()));
         let ask = match spec.category.as_deref() {
             // A conditioned model's motions ask for their contexts' categories
@@ -195,7 +208,18 @@ impl Run {
             warnings,
             ask,
             asked_explicitly: spec.category.is_some(),
+            pace_gain: spec.pace_gain,
         })
+    }
+
+    /// The gain long motions are held to their asked pace with, where they
+    /// are ([`generate::PACE_GAIN`]): a model with the pace part, asked for
+    /// a category, at a gain above 0.
+    pub fn held_pace(&self) -> Option<f64> {
+        (self.model.model.config().parts.pace
+            && self.pace_gain > 0.0
+            && self.ask != Asking::Nothing)
+            .then_some(self.pace_gain)
     }
 
     /// The windows of split `name`, or an error when it has none.
@@ -275,6 +299,7 @@ impl Run {
             frames,
             context,
             seed,
+            pace_gain: self.pace_gain,
             ask: match ask {
                 Asking::One(_, a) => Some(a),
                 _ => None,

@@ -67,7 +67,27 @@ pub struct Rollout {
     pub seed: u64,
     /// The category asked for (a conditioned model only; None: none).
     pub ask: Option<Ask>,
+    /// How hard a long motion is held to its asked pace (a model with the
+    /// pace part, asked for a category; 0: not at all): [`PACE_GAIN`].
+    pub pace_gain: f64,
 }
+
+/// The pace a long motion is held to, unless told otherwise (`--pace-gain`).
+/// A model with the pace part ([`crate::model::Parts::pace`]) is asked, at
+/// every frame, for its context window's pace; over a minute its own
+/// rollout drifts off it anyway (slower, stiller). So a motion longer than
+/// [`PACE_EVERY`] frames is made in runs of that many, and each run after
+/// the first asks for `target + gain × (target − made)`, `made` the pace of
+/// the frames of the run before it: a proportional controller on the
+/// condition ([`crate::model::Config::kept_pace`]). 0.5 was chosen on `val`
+/// over 0, 0.25, 0.35 and 0.75 (seeds 0–2 of the default; 1 oscillates),
+/// then checked on nine seeds (`docs/training.md`, "Holding the pace over
+/// a minute"). Training and the judge do not use it.
+pub const PACE_GAIN: f64 = 0.5;
+
+/// Frames per run of a motion held to its pace ([`PACE_GAIN`]): one
+/// window's length.
+pub const PACE_EVERY: usize = 128;
 
 /// The guidance scale generation asks a category at unless told otherwise
 /// (`--guidance`, [`crate::model::Config::condition`]): chosen on `val` over
@@ -170,20 +190,28 @@ pub fn continue_windows_with(
         starts.features,
         picks.len(),
     );
-    // One run of the recurrence, or runs of `segment` new frames, each
-    // restarting from a fresh state on the last `k` frames made so far.
-    let frames = o.frames.max(1);
-    let segment = model
-        .config()
-        .parts
-        .restart
-        .filter(|&l| l > 0 && frames > l + 1)
-        .unwrap_or(frames - 1);
-    let mut out: Vec<Vec<f32>> = vec![Vec::with_capacity(frames * f); n];
+    let config = model.config();
     let whole = starts.batch(picks, device)?;
     // A model with the pace part is asked for each window's own pace, as
     // it was trained (the whole window's, not its context's).
-    let cond = model.config().paced(cond.as_ref(), Some(&whole))?;
+    let mut cond = config.paced(cond.as_ref(), Some(&whole))?;
+    let frames = o.frames.max(1);
+    // Held to that pace over a long motion ([`PACE_GAIN`]).
+    let target = match &cond {
+        Some(_) if config.parts.pace && o.pace_gain > 0.0 && frames > PACE_EVERY + 1 => {
+            Some(crate::model::pace(&whole)?)
+        }
+        _ => None,
+    };
+    // One run of the recurrence, or runs of `segment` new frames, each
+    // restarting from a fresh state on the last `k` frames made so far.
+    let segment = config
+        .parts
+        .restart
+        .filter(|&l| l > 0 && frames > l + 1)
+        .unwrap_or(frames - 1)
+        .min(if target.is_some() { PACE_EVERY } else { frames });
+    let mut out: Vec<Vec<f32>> = vec![Vec::with_capacity(frames * f); n];
     let mut context = whole.narrow(1, 0, k)?;
     let mut made = 0;
     for run in 0u64.. {
@@ -206,6 +234,15 @@ pub fn continue_windows_with(
             .flat_map(|o| o[(made - k) * f..].iter().copied())
             .collect();
         context = candle_core::Tensor::from_vec(last, (n, k, f), device)?;
+        if let (Some(target), Some(c)) = (&target, &cond) {
+            let span = made.min(PACE_EVERY);
+            let run: Vec<f32> = out
+                .iter()
+                .flat_map(|o| o[(made - span) * f..].iter().copied())
+                .collect();
+            let run = candle_core::Tensor::from_vec(run, (n, span, f), device)?;
+            cond = Some(config.kept_pace(c, target, &crate::model::pace(&run)?, o.pace_gain)?);
+        }
     }
     Ok(out)
 }
@@ -316,6 +353,7 @@ impl<'a> Judge<'a> {
             context: CONTEXT,
             seed: JUDGE_SEED,
             ask: None,
+            pace_gain: 0.0,
         };
         // A conditioned model is asked for each context's own category.
         let picks = picks(rollout.seed, n, self.starts.n);

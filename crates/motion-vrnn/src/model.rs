@@ -419,6 +419,31 @@ impl Config {
         Tensor::cat(&[cond, &pace.broadcast_mul(&asked)?], 1).map(Some)
     }
 
+    /// `cond` (paced, [`Config::paced`]) asking instead for `target +
+    /// gain × (target − made)`, weighed as [`Config::paced`] weighs it:
+    /// `target` the pace asked for, `made` the pace of the frames made
+    /// (`[B, PACE_FEATURES]` each). A proportional step toward the target
+    /// for a rollout that drifted off it ([`crate::generate::PACE_GAIN`]).
+    pub fn kept_pace(
+        &self,
+        cond: &Tensor,
+        target: &Tensor,
+        made: &Tensor,
+        gain: f64,
+    ) -> Result<Tensor> {
+        let w = self.categories.len() + 1;
+        if !self.parts.pace || cond.dim(1)? != w + PACE_FEATURES.len() {
+            candle_core::bail!(
+                "kept_pace: a paced condition of {} columns, got {:?}",
+                w + PACE_FEATURES.len(),
+                cond.shape()
+            );
+        }
+        let asked = cond.narrow(1, 0, 1)?.affine(-1.0, 1.0)?;
+        let want = (target + ((target - made)? * gain)?)?;
+        Tensor::cat(&[&cond.narrow(1, 0, w)?, &want.broadcast_mul(&asked)?], 1)
+    }
+
     /// Condition weights `[B, categories + 1]` for sequences asking for
     /// `asked` (rows of [`Config::categories`], counted from 1; None: no
     /// category) at guidance scale `guidance`: a sequence asking for row

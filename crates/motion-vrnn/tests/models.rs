@@ -1025,6 +1025,123 @@ fn the_pace_is_four_means_read_where_a_category_is_asked() {
     assert_eq!(loss(&m, Some(&walk)), loss(&plain, Some(&walk)));
 }
 
+#[test]
+fn kept_pace_asks_for_a_step_past_the_target() {
+    let mut c = conditioned("motion", true).model.config().clone();
+    c.parts.pace = true;
+    let m = init_model(&c, 4, &Device::Cpu).unwrap();
+    let c = m.model.config();
+    // Row 1 at guidance 1.25: weights [−0.25, 1.25, 0, 0], the pace × 1.25.
+    let mut v = vec![0f32; 2 * 58];
+    for (&f, p) in motion_vrnn::model::PACE_FEATURES
+        .iter()
+        .zip([1f32, 2.0, 3.0, 4.0])
+    {
+        v[f] = p;
+        v[58 + f] = p;
+    }
+    let x = Tensor::from_vec(v, (1, 2, 58), &Device::Cpu).unwrap();
+    let cond = c
+        .paced(Some(&ask(&m, &[Some(1)], 1.25)), Some(&x))
+        .unwrap()
+        .unwrap();
+    assert_eq!(flat(&cond), [-0.25, 1.25, 0.0, 0.0, 1.25, 2.5, 3.75, 5.0]);
+    let target = motion_vrnn::model::pace(&x).unwrap();
+    let made = Tensor::new(&[[0f32, 2.0, 5.0, 4.0]], &Device::Cpu).unwrap();
+    // target + 0.5 (target − made) = [1.5, 2, 2, 4], weighed by 1.25.
+    let kept = c.kept_pace(&cond, &target, &made, 0.5).unwrap();
+    assert_eq!(flat(&kept), [-0.25, 1.25, 0.0, 0.0, 1.875, 2.5, 2.5, 5.0]);
+    // Made at the target: the request is the target's.
+    assert_eq!(
+        flat(&c.kept_pace(&cond, &target, &target, 0.5).unwrap()),
+        flat(&cond)
+    );
+    // Weights without their pace are refused.
+    let bare = ask(&m, &[Some(1)], 1.25);
+    assert!(c.kept_pace(&bare, &target, &made, 0.5).is_err());
+}
+
+#[test]
+fn long_motions_are_held_to_their_pace_after_the_first_run() {
+    use motion_vrnn::data::Windows;
+    use motion_vrnn::generate::{continue_windows, Ask, Rollout, PACE_EVERY};
+    let with_pace = |pace: bool| {
+        let mut c = conditioned("motion", true).model.config().clone();
+        c.parts.pace = pace;
+        let m = init_model(&c, 4, &Device::Cpu).unwrap();
+        randomise(&m);
+        m
+    };
+    let (paced, plain) = (with_pace(true), with_pace(false));
+    let (len, f) = (16, 58);
+    let windows = Windows {
+        data: Rng::new(5, 5)
+            .normals(3 * len * f)
+            .iter()
+            .map(|v| 0.5 * v)
+            .collect(),
+        n: 3,
+        length: len,
+        features: f,
+    };
+    let frames = 2 * PACE_EVERY + 20;
+    let run = |m: &motion_vrnn::model::Vrnn, ask: Option<Ask>, pace_gain: f64| {
+        let o = Rollout {
+            frames,
+            context: 4,
+            seed: 2,
+            ask,
+            pace_gain,
+        };
+        continue_windows(m, &windows, &[0, 2], &o, &Device::Cpu).unwrap()
+    };
+    let walk = Some(Ask {
+        row: 1,
+        guidance: 1.25,
+    });
+    let first = (PACE_EVERY + 1) * f;
+    // Held: made in runs of PACE_EVERY, each after the first asking for
+    // more or less than the target.
+    let (held, free) = (run(&paced.model, walk, 0.5), run(&paced.model, walk, 0.0));
+    let mut restarted = paced.model.clone();
+    restarted.set_restart(Some(PACE_EVERY));
+    let runs = run(&restarted, walk, 0.0);
+    for ((h, g), r) in held.iter().zip(&free).zip(&runs) {
+        assert_eq!(h.len(), frames * f);
+        assert_eq!(
+            &h[..first],
+            &g[..first],
+            "the first run is the free motion's"
+        );
+        assert_eq!(&h[..first], &r[..first]);
+        assert_ne!(
+            &h[first..],
+            &r[first..],
+            "later runs are asked for another pace"
+        );
+    }
+    assert_eq!(
+        held,
+        run(&paced.model, walk, 0.5),
+        "the same seed, the same motion"
+    );
+    // Nothing to hold without a pace asked: no category, or no pace part.
+    assert_eq!(run(&paced.model, None, 0.5), run(&paced.model, None, 0.0));
+    assert_eq!(run(&plain.model, walk, 0.5), run(&plain.model, walk, 0.0));
+    // A motion of one window is never held.
+    let short = |g: f64| {
+        let o = Rollout {
+            frames: PACE_EVERY + 1,
+            context: 4,
+            seed: 2,
+            ask: walk,
+            pace_gain: g,
+        };
+        continue_windows(&paced.model, &windows, &[1], &o, &Device::Cpu).unwrap()
+    };
+    assert_eq!(short(0.5), short(0.0));
+}
+
 /// The gradient through the rollout runs as one fused block with its own
 /// backward (`blocks::rollout::RolloutOp`): the losses and every gradient
 /// equal candle's autograd through the step loop it replaces
