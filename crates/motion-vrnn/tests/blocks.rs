@@ -217,22 +217,17 @@ fn latent_lstm_block() {
     let pre = randn(9, &[b, t, dims.pre()], 1.0);
     let eps = randn(10, &[b, t, dims.latent], 1.0);
     let w = randn(11, &[dims.weights()], 0.4);
-    check("latent lstm", &[pre, eps, w], &[0, 2], 1e-5, 10, |x| {
-        blocks::latent_lstm(&[&x[0]], None, &x[1], &x[2], dims).unwrap()
-    });
-}
-
-#[test]
-fn latent_lstm_block_in_two_blocks_with_rows() {
-    let dims = ScanDims {
-        hidden: 5,
-        latent: 3,
-    };
-    let (b, t) = (4, 7);
+    check(
+        "latent lstm",
+        &[pre, eps.clone(), w.clone()],
+        &[0, 2],
+        1e-5,
+        10,
+        |x| blocks::latent_lstm(&[&x[0]], None, &x[1], &x[2], dims).unwrap(),
+    );
+    // `pre` in two blocks, with rows added to every step.
     let enc = randn(20, &[b, t, 2 * dims.latent], 1.0);
     let gates = randn(21, &[b, t, 4 * dims.hidden], 1.0);
-    let eps = randn(22, &[b, t, dims.latent], 1.0);
-    let w = randn(23, &[dims.weights()], 0.4);
     for (name, rb) in [("rows per sequence", b), ("one row for all", 1)] {
         let rows = randn(24, &[rb, 1, dims.pre()], 0.5);
         let inputs = [enc.clone(), gates.clone(), rows, eps.clone(), w.clone()];
