@@ -213,13 +213,10 @@ impl Run {
     }
 
     /// The gain long motions are held to their asked pace with, where they
-    /// are ([`generate::PACE_GAIN`]): a model with the pace part, asked for
-    /// a category, at a gain above 0.
+    /// are ([`generate::held_gain`]).
     pub fn held_pace(&self) -> Option<f64> {
-        (self.model.model.config().parts.pace
-            && self.pace_gain > 0.0
-            && self.ask != Asking::Nothing)
-            .then_some(self.pace_gain)
+        let config = self.model.model.config();
+        generate::held_gain(config, self.pace_gain, self.ask != Asking::Nothing)
     }
 
     /// The windows of split `name`, or an error when it has none.

@@ -89,6 +89,13 @@ pub const PACE_GAIN: f64 = 0.5;
 /// window's length.
 pub const PACE_EVERY: usize = 128;
 
+/// The gain a motion of `config`'s model is held to its pace with
+/// ([`PACE_GAIN`]): `gain` where the model reads a pace, a category is
+/// `asked` and `gain` is above 0; None where nothing is held.
+pub fn held_gain(config: &crate::Config, gain: f64, asked: bool) -> Option<f64> {
+    (config.parts.pace && asked && gain > 0.0).then_some(gain)
+}
+
 /// The guidance scale generation asks a category at unless told otherwise
 /// (`--guidance`, [`crate::model::Config::condition`]): chosen on `val` over
 /// 1 (as trained) and 1.5, with the three default seeds (`docs/training.md`,
@@ -197,10 +204,8 @@ pub fn continue_windows_with(
     let mut cond = config.paced(cond.as_ref(), Some(&whole))?;
     let frames = o.frames.max(1);
     // Held to that pace over a long motion ([`PACE_GAIN`]).
-    let target = match &cond {
-        Some(_) if config.parts.pace && o.pace_gain > 0.0 && frames > PACE_EVERY + 1 => {
-            Some(crate::model::pace(&whole)?)
-        }
+    let target = match held_gain(config, o.pace_gain, cond.is_some()) {
+        Some(_) if frames > PACE_EVERY + 1 => Some(crate::model::pace(&whole)?),
         _ => None,
     };
     // One run of the recurrence, or runs of `segment` new frames, each
