@@ -51,7 +51,7 @@ pub struct RunArgs {
     /// Guidance scale of --category (1: as trained; 0: none; above 1: further from the unconditioned).
     #[arg(long, default_value_t = motion_vrnn::generate::GUIDANCE)]
     pub guidance: f64,
-    /// How hard a motion longer than a window is held to its asked pace (a model conditioned on category and pace): every 128 frames it is asked for target + gain × (target − the pace it made) (0: not held).
+    /// How hard a motion is held to its asked pace (a model conditioned on category and pace): each run of at most 128 frames is tried 4 times, the pace it asks for moved by gain × (target − the pace the try made) after each (0: not held).
     #[arg(long, default_value_t = motion_vrnn::generate::PACE_GAIN)]
     pub pace_gain: f64,
 }

@@ -334,6 +334,21 @@ pub fn misses(h: &Horizon, st: &Stretch) -> Vec<&'static str> {
         .collect()
 }
 
+/// The sentence a report says its motions were held to their asked pace
+/// with (`gain`: [`Horizon::pace_gain`]; None: nothing).
+pub fn held_sentence(gain: Option<f64>) -> String {
+    match gain {
+        Some(g) => format!(
+            " Each motion held to its asked pace: each run of at most {} frames tried {} times \
+             on its noise, the pace asked for moved by {g} × (target − the pace the try made) \
+             after each (`--pace-gain`, `docs/metrics.md`).",
+            motion_vrnn::generate::PACE_EVERY,
+            motion_vrnn::generate::PACE_CORRECTIONS + 1
+        ),
+        None => String::new(),
+    }
+}
+
 /// The long-horizon table in Markdown: one row per stretch, each measure as
 /// generated ÷ all real windows, the real-vs-real range in the header.
 pub fn markdown(h: &Horizon) -> String {
@@ -352,14 +367,7 @@ pub fn markdown(h: &Horizon) -> String {
         h.real_windows,
         h.motions.min(h.real_windows / 2),
         h.frechet_reference,
-        held = match h.pace_gain {
-            Some(g) => format!(
-                " Each motion held to its asked pace: every {} frames asked for target + {g} × \
-                 (target − the pace of the frames it made) (`--pace-gain`, `docs/metrics.md`).",
-                motion_vrnn::generate::PACE_EVERY
-            ),
-            None => String::new(),
-        }
+        held = held_sentence(h.pace_gain)
     );
     for (name, _) in MEASURES {
         s += &format!(" {name} |");
@@ -512,10 +520,10 @@ mod tests {
         h.pace_gain = Some(0.5);
         let md = markdown(&h);
         assert!(
-            md.contains("held to its asked pace: every 128 frames"),
+            md.contains("held to its asked pace: each run of at most 128 frames tried 4 times"),
             "{md}"
         );
-        assert!(md.contains("target + 0.5 × (target −"), "{md}");
+        assert!(md.contains("moved by 0.5 × (target − the pace"), "{md}");
         let back: Horizon =
             serde_json::from_value(serde_json::to_value(&h).expect("serialises")).expect("reads");
         assert_eq!(back.pace_gain, Some(0.5));

@@ -49,6 +49,11 @@ pub struct EvalReport {
     /// Sampling temperature of the generated motions (1: the prior as is).
     #[serde(default = "one")]
     pub temperature: f64,
+    /// The gain the generated motions were held to their asked pace with
+    /// ([`motion_vrnn::generate::PACE_GAIN`]; absent: not held, or a report
+    /// written before 4-second motions were).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pace_gain: Option<f64>,
     pub windows: usize,
     pub frames: usize,
     /// Per frame, on the split, with the training noise convention.
@@ -176,6 +181,7 @@ pub fn report(
         context: a.context,
         contexts,
         temperature: m.model.model.config().parts.temperature.unwrap_or(1.0),
+        pace_gain: m.held_pace(),
         windows: w.n,
         frames: w.length,
         neg_elbo_per_frame: (recon + kl) / t,
@@ -214,12 +220,13 @@ pub fn report(
 /// `eval.md`: the report as a Markdown page.
 pub fn markdown(r: &EvalReport) -> String {
     let mut s = format!(
-        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}, temperature {}), each continuing the first {} frames of {}.\n\n",
+        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}, temperature {}), each continuing the first {} frames of {}.{}\n\n",
         r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed, r.temperature, r.context,
         match r.contexts {
             Contexts::Split => format!("one `{}` window (every window once)", r.split),
             Contexts::Train => "a random training window".to_string(),
-        }
+        },
+        crate::horizon::held_sentence(r.pace_gain)
     );
     s += &format!(
         "Per frame on `{}`: negative ELBO **{:.3}** = reconstruction {:.3} + KL {:.3} (normalised units).\n\n",

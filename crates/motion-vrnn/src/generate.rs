@@ -67,23 +67,30 @@ pub struct Rollout {
     pub seed: u64,
     /// The category asked for (a conditioned model only; None: none).
     pub ask: Option<Ask>,
-    /// How hard a long motion is held to its asked pace (a model with the
-    /// pace part, asked for a category; 0: not at all): [`PACE_GAIN`].
+    /// How hard a motion is held to its asked pace (a model with the pace
+    /// part, asked for a category; 0: not at all): [`PACE_GAIN`].
     pub pace_gain: f64,
 }
 
-/// The pace a long motion is held to, unless told otherwise (`--pace-gain`).
-/// A model with the pace part ([`crate::model::Parts::pace`]) is asked, at
-/// every frame, for its context window's pace; over a minute its own
-/// rollout drifts off it anyway (slower, stiller). So a motion longer than
-/// [`PACE_EVERY`] frames is made in runs of that many, and each run after
-/// the first asks for `target + gain × (target − made)`, `made` the pace of
-/// the frames of the run before it: a proportional controller on the
-/// condition ([`crate::model::Config::kept_pace`]). 0.5 was chosen on `val`
-/// over 0, 0.25, 0.35 and 0.75 (seeds 0–2 of the default; 1 oscillates),
-/// then checked on nine seeds (`docs/training.md`, "Holding the pace over
-/// a minute"). Training and the judge do not use it.
+/// How hard a motion is held to its asked pace, unless told otherwise
+/// (`--pace-gain`). A model with the pace part ([`crate::model::Parts::pace`])
+/// is asked, at every frame, for its context window's pace, and makes motion
+/// slower and stiller than it asks for (a walk at 0.64× a walk's speed; over
+/// a minute it drifts further off). So each run of at most [`PACE_EVERY`]
+/// frames is tried on its noise and its ask corrected [`PACE_CORRECTIONS`]
+/// times, each correction `gain × (target − made)`, `made` the pace of the
+/// frames that try made (an integral controller on the condition, within
+/// the run; [`crate::model::Config::asking_pace`]); the try after the last
+/// correction is kept. Chosen on `val` (seeds 0–2 of the default) over a
+/// proportional controller between runs (the default until 2026-11-29),
+/// corrections of the first run only, of the first run carried on, 0.75 and
+/// 5 corrections, then checked on nine seeds (`docs/training.md`, "Holding
+/// the pace"). Training and the judge do not use it.
 pub const PACE_GAIN: f64 = 0.5;
+
+/// Corrections of each run's asked pace before it is kept ([`PACE_GAIN`]):
+/// a run held to its pace costs `1 +` this many samplings.
+pub const PACE_CORRECTIONS: usize = 3;
 
 /// Frames per run of a motion held to its pace ([`PACE_GAIN`]): one
 /// window's length.
@@ -203,9 +210,10 @@ pub fn continue_windows_with(
     // it was trained (the whole window's, not its context's).
     let mut cond = config.paced(cond.as_ref(), Some(&whole))?;
     let frames = o.frames.max(1);
-    // Held to that pace over a long motion ([`PACE_GAIN`]).
-    let target = match held_gain(config, o.pace_gain, cond.is_some()) {
-        Some(_) if frames > PACE_EVERY + 1 => Some(crate::model::pace(&whole)?),
+    // Held to that pace ([`PACE_GAIN`]): the target, and the weights asking
+    // for it that each run's corrections start from.
+    let held = match (held_gain(config, o.pace_gain, cond.is_some()), &cond) {
+        (Some(_), Some(c)) => Some((crate::model::pace(&whole)?, c.clone())),
         _ => None,
     };
     // One run of the recurrence, or runs of `segment` new frames, each
@@ -215,7 +223,7 @@ pub fn continue_windows_with(
         .restart
         .filter(|&l| l > 0 && frames > l + 1)
         .unwrap_or(frames - 1)
-        .min(if target.is_some() { PACE_EVERY } else { frames });
+        .min(if held.is_some() { PACE_EVERY } else { frames });
     let mut out: Vec<Vec<f32>> = vec![Vec::with_capacity(frames * f); n];
     let mut context = whole.narrow(1, 0, k)?;
     let mut made = 0;
@@ -224,6 +232,14 @@ pub fn continue_windows_with(
         // (its context's last).
         let new = segment.min(frames - made.max(1));
         let eps = noise(o.seed ^ 0x5A3F1E, run, k + new, n, latent, device)?;
+        if let Some((target, asking)) = &held {
+            let tries = Tries {
+                eps: &eps,
+                context: &context,
+                new,
+            };
+            cond = Some(held_to_pace(model, &tries, asking, target, o.pace_gain)?);
+        }
         let x = model.sample(&eps, Some(&context), cond.as_ref())?;
         let x = x.narrow(1, k - 1, new + 1)?;
         let v = x.flatten_all()?.to_vec1::<f32>()?;
@@ -239,17 +255,39 @@ pub fn continue_windows_with(
             .flat_map(|o| o[(made - k) * f..].iter().copied())
             .collect();
         context = candle_core::Tensor::from_vec(last, (n, k, f), device)?;
-        if let (Some(target), Some(c)) = (&target, &cond) {
-            let span = made.min(PACE_EVERY);
-            let run: Vec<f32> = out
-                .iter()
-                .flat_map(|o| o[(made - span) * f..].iter().copied())
-                .collect();
-            let run = candle_core::Tensor::from_vec(run, (n, span, f), device)?;
-            cond = Some(config.kept_pace(c, target, &crate::model::pace(&run)?, o.pace_gain)?);
-        }
     }
     Ok(out)
+}
+
+/// A run of a motion: its noise `[k + new, n, latent]`, the `k` frames it
+/// continues `[n, k, features]` and the frames it makes after them.
+struct Tries<'a> {
+    eps: &'a candle_core::Tensor,
+    context: &'a candle_core::Tensor,
+    new: usize,
+}
+
+/// The condition weights a run is kept with, held to the pace `target`
+/// (`[n, PACE_FEATURES]`) at `gain` ([`PACE_GAIN`]): from `asking` (the
+/// weights asking for `target`), [`PACE_CORRECTIONS`] tries, each moving the
+/// pace asked for by `gain × (target − made)`, `made` the pace of the try's
+/// frames (the context's last and the new ones).
+fn held_to_pace(
+    model: &dyn MotionModel,
+    run: &Tries,
+    asking: &candle_core::Tensor,
+    target: &candle_core::Tensor,
+    gain: f64,
+) -> candle_core::Result<candle_core::Tensor> {
+    let (config, k) = (model.config(), run.context.dim(1)?);
+    let (mut want, mut cond) = (target.clone(), asking.clone());
+    for _ in 0..PACE_CORRECTIONS {
+        let x = model.sample(run.eps, Some(run.context), Some(&cond))?;
+        let made = crate::model::pace(&x.narrow(1, k - 1, run.new + 1)?)?;
+        want = (&want + ((target - &made)? * gain)?)?;
+        cond = config.asking_pace(asking, &want)?;
+    }
+    Ok(cond)
 }
 
 /// Sampling seed of the judge: apart from the seeds `cargo xtask eval` and

@@ -419,28 +419,20 @@ impl Config {
         Tensor::cat(&[cond, &pace.broadcast_mul(&asked)?], 1).map(Some)
     }
 
-    /// `cond` (paced, [`Config::paced`]) asking instead for `target +
-    /// gain × (target − made)`, weighed as [`Config::paced`] weighs it:
-    /// `target` the pace asked for, `made` the pace of the frames made
-    /// (`[B, PACE_FEATURES]` each). A proportional step toward the target
-    /// for a rollout that drifted off it ([`crate::generate::PACE_GAIN`]).
-    pub fn kept_pace(
-        &self,
-        cond: &Tensor,
-        target: &Tensor,
-        made: &Tensor,
-        gain: f64,
-    ) -> Result<Tensor> {
+    /// `cond` (paced, [`Config::paced`]) asking for the pace `want`
+    /// (`[B, PACE_FEATURES]`) instead of its own, weighed as
+    /// [`Config::paced`] weighs it (by the weight of the category asked):
+    /// how a motion is held to its pace ([`crate::generate::PACE_GAIN`]).
+    pub fn asking_pace(&self, cond: &Tensor, want: &Tensor) -> Result<Tensor> {
         let w = self.categories.len() + 1;
         if !self.parts.pace || cond.dim(1)? != w + PACE_FEATURES.len() {
             candle_core::bail!(
-                "kept_pace: a paced condition of {} columns, got {:?}",
+                "asking_pace: a paced condition of {} columns, got {:?}",
                 w + PACE_FEATURES.len(),
                 cond.shape()
             );
         }
         let asked = cond.narrow(1, 0, 1)?.affine(-1.0, 1.0)?;
-        let want = (target + ((target - made)? * gain)?)?;
         Tensor::cat(&[&cond.narrow(1, 0, w)?, &want.broadcast_mul(&asked)?], 1)
     }
 

@@ -1026,7 +1026,7 @@ fn the_pace_is_four_means_read_where_a_category_is_asked() {
 }
 
 #[test]
-fn kept_pace_asks_for_a_step_past_the_target() {
+fn asking_pace_weighs_the_pace_as_paced_does() {
     let mut c = conditioned("motion", true).model.config().clone();
     c.parts.pace = true;
     let m = init_model(&c, 4, &Device::Cpu).unwrap();
@@ -1047,24 +1047,26 @@ fn kept_pace_asks_for_a_step_past_the_target() {
         .unwrap();
     assert_eq!(flat(&cond), [-0.25, 1.25, 0.0, 0.0, 1.25, 2.5, 3.75, 5.0]);
     let target = motion_vrnn::model::pace(&x).unwrap();
-    let made = Tensor::new(&[[0f32, 2.0, 5.0, 4.0]], &Device::Cpu).unwrap();
-    // target + 0.5 (target − made) = [1.5, 2, 2, 4], weighed by 1.25.
-    let kept = c.kept_pace(&cond, &target, &made, 0.5).unwrap();
-    assert_eq!(flat(&kept), [-0.25, 1.25, 0.0, 0.0, 1.875, 2.5, 2.5, 5.0]);
-    // Made at the target: the request is the target's.
+    // Asking for its own pace changes nothing.
+    assert_eq!(flat(&c.asking_pace(&cond, &target).unwrap()), flat(&cond));
+    // Another pace, weighed by 1.25.
+    let want = Tensor::new(&[[1.5f32, 2.0, 2.0, 4.0]], &Device::Cpu).unwrap();
     assert_eq!(
-        flat(&c.kept_pace(&cond, &target, &target, 0.5).unwrap()),
-        flat(&cond)
+        flat(&c.asking_pace(&cond, &want).unwrap()),
+        [-0.25, 1.25, 0.0, 0.0, 1.875, 2.5, 2.5, 5.0]
     );
     // Weights without their pace are refused.
     let bare = ask(&m, &[Some(1)], 1.25);
-    assert!(c.kept_pace(&bare, &target, &made, 0.5).is_err());
+    assert!(c.asking_pace(&bare, &target).is_err());
 }
 
 #[test]
-fn long_motions_are_held_to_their_pace_after_the_first_run() {
+fn motions_are_held_to_their_pace_run_by_run() {
     use motion_vrnn::data::Windows;
-    use motion_vrnn::generate::{continue_windows, Ask, Rollout, PACE_EVERY};
+    use motion_vrnn::generate::{
+        continue_windows, Ask, Rollout, PACE_CORRECTIONS, PACE_EVERY, PACE_GAIN,
+    };
+    use motion_vrnn::model::pace;
     let with_pace = |pace: bool| {
         let mut c = conditioned("motion", true).model.config().clone();
         c.parts.pace = pace;
@@ -1073,7 +1075,7 @@ fn long_motions_are_held_to_their_pace_after_the_first_run() {
         m
     };
     let (paced, plain) = (with_pace(true), with_pace(false));
-    let (len, f) = (16, 58);
+    let (len, f, k) = (16, 58, 4);
     let windows = Windows {
         data: Rng::new(5, 5)
             .normals(3 * len * f)
@@ -1084,62 +1086,76 @@ fn long_motions_are_held_to_their_pace_after_the_first_run() {
         length: len,
         features: f,
     };
-    let frames = 2 * PACE_EVERY + 20;
-    let run = |m: &motion_vrnn::model::Vrnn, ask: Option<Ask>, pace_gain: f64| {
-        let o = Rollout {
-            frames,
-            context: 4,
-            seed: 2,
-            ask,
-            pace_gain,
-        };
-        continue_windows(m, &windows, &[0, 2], &o, &Device::Cpu).unwrap()
-    };
     let walk = Some(Ask {
         row: 1,
         guidance: 1.25,
     });
-    let first = (PACE_EVERY + 1) * f;
-    // Held: made in runs of PACE_EVERY, each after the first asking for
-    // more or less than the target.
-    let (held, free) = (run(&paced.model, walk, 0.5), run(&paced.model, walk, 0.0));
+    let run = |m: &motion_vrnn::model::Vrnn, frames, picks: &[usize], ask, pace_gain| {
+        let o = Rollout {
+            frames,
+            context: k,
+            seed: 2,
+            ask,
+            pace_gain,
+        };
+        continue_windows(m, &windows, picks, &o, &Device::Cpu).unwrap()
+    };
+    // One window, by hand: the weights asking for the window's pace, tried
+    // on the run's noise, each try's ask moved by gain × (target − made).
+    let one = PACE_EVERY + 1;
+    let held = run(&paced.model, one, &[1], walk, PACE_GAIN);
+    let c = paced.model.config();
+    let whole = windows.batch(&[1], &Device::Cpu).unwrap();
+    let asking = c
+        .paced(Some(&ask(&paced, &[Some(1)], 1.25)), Some(&whole))
+        .unwrap()
+        .unwrap();
+    let (target, context) = (pace(&whole).unwrap(), whole.narrow(1, 0, k).unwrap());
+    let eps =
+        motion_vrnn::rng::noise(2 ^ 0x5A3F1E, 0, k + one - 1, 1, c.latent, &Device::Cpu).unwrap();
+    let made = |cond: &Tensor| {
+        let x = paced
+            .model
+            .sample(&eps, Some(&context), Some(cond))
+            .unwrap();
+        x.narrow(1, k - 1, one).unwrap()
+    };
+    let (mut want, mut cond) = (target.clone(), asking.clone());
+    for _ in 0..PACE_CORRECTIONS {
+        let off = (&target - pace(&made(&cond)).unwrap()).unwrap();
+        want = (&want + (off * PACE_GAIN).unwrap()).unwrap();
+        cond = c.asking_pace(&asking, &want).unwrap();
+    }
+    assert_eq!(held[0], flat(&made(&cond)));
+    let free = run(&paced.model, one, &[1], walk, 0.0);
+    assert_eq!(held[0][..f], free[0][..f], "the same start frame");
+    assert_ne!(held[0][f..], free[0][f..], "asked for another pace");
+    assert_eq!(free[0], flat(&made(&asking)), "not held: asked as trained");
+    // A long motion: runs of PACE_EVERY, each held, each restarting on the
+    // last frames made.
+    let frames = 2 * PACE_EVERY + 20;
+    let held = run(&paced.model, frames, &[0, 2], walk, PACE_GAIN);
     let mut restarted = paced.model.clone();
     restarted.set_restart(Some(PACE_EVERY));
-    let runs = run(&restarted, walk, 0.0);
-    for ((h, g), r) in held.iter().zip(&free).zip(&runs) {
+    let runs = run(&restarted, frames, &[0, 2], walk, 0.0);
+    let first = (PACE_EVERY + 1) * f;
+    for (h, r) in held.iter().zip(&runs) {
         assert_eq!(h.len(), frames * f);
-        assert_eq!(
-            &h[..first],
-            &g[..first],
-            "the first run is the free motion's"
-        );
-        assert_eq!(&h[..first], &r[..first]);
-        assert_ne!(
-            &h[first..],
-            &r[first..],
-            "later runs are asked for another pace"
-        );
+        assert_ne!(h[..first], r[..first]);
+        assert_ne!(h[first..], r[first..]);
     }
     assert_eq!(
         held,
-        run(&paced.model, walk, 0.5),
+        run(&paced.model, frames, &[0, 2], walk, PACE_GAIN),
         "the same seed, the same motion"
     );
     // Nothing to hold without a pace asked: no category, or no pace part.
-    assert_eq!(run(&paced.model, None, 0.5), run(&paced.model, None, 0.0));
-    assert_eq!(run(&plain.model, walk, 0.5), run(&plain.model, walk, 0.0));
-    // A motion of one window is never held.
-    let short = |g: f64| {
-        let o = Rollout {
-            frames: PACE_EVERY + 1,
-            context: 4,
-            seed: 2,
-            ask: walk,
-            pace_gain: g,
-        };
-        continue_windows(&paced.model, &windows, &[1], &o, &Device::Cpu).unwrap()
-    };
-    assert_eq!(short(0.5), short(0.0));
+    for (m, a) in [(&paced.model, None), (&plain.model, walk)] {
+        assert_eq!(
+            run(m, frames, &[0, 2], a, PACE_GAIN),
+            run(m, frames, &[0, 2], a, 0.0)
+        );
+    }
 }
 
 /// The gradient through the rollout runs as one fused block with its own
