@@ -18,6 +18,7 @@ fn roll(frames: usize, context: usize) -> Rollout {
         seed: 3,
         ask: None,
         pace_gain: 0.0,
+        draws: 1,
     }
 }
 

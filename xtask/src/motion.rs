@@ -54,6 +54,9 @@ pub struct RunArgs {
     /// How hard a motion is held to its asked pace (a model conditioned on category and pace): each run of at most 128 frames is tried 4 times, the pace it asks for moved by gain × (target − the pace the try made) after each (0: not held).
     #[arg(long, default_value_t = motion_vrnn::generate::PACE_GAIN)]
     pub pace_gain: f64,
+    /// Draws of noise each run of a held motion is chosen from: each motion keeps the one whose mean pose is closest to its context's (1: one draw).
+    #[arg(long, default_value_t = motion_vrnn::generate::POSE_DRAWS)]
+    pub draws: usize,
 }
 
 /// `cargo xtask sample` options.
@@ -169,6 +172,7 @@ impl RunArgs {
             category: self.category.clone(),
             guidance: self.guidance,
             pace_gain: self.pace_gain,
+            draws: self.draws,
         }
     }
 }
@@ -331,10 +335,8 @@ pub fn eval(a: EvalArgs) -> Result<()> {
         motions: a.horizon_motions,
     });
     let report = report(&a.run.spec(), a.contexts, horizon, a.classifier.as_deref())?;
-    report
-        .warnings
-        .iter()
-        .for_each(|w| eprintln!("warning: {w}"));
+    let warnings = report.warnings.iter();
+    warnings.for_each(|w| eprintln!("warning: {w}"));
     let json = serde_json::to_string_pretty(&report)? + "\n";
     motion_render::write_file(&out.join("eval.json"), json.as_bytes())?;
     let md = markdown(&report);
@@ -365,10 +367,8 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
     run.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
     let done = continue_clip(&run, &clip.features, &o)
         .with_context(|| format!("continuing {}", a.input.display()))?;
-    let (stem, dir) = (
-        a.out.with_extension(""),
-        a.out.parent().unwrap_or(Path::new(".")),
-    );
+    let stem = a.out.with_extension("");
+    let dir = a.out.parent().unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     println!(
         "{}: {} frames at 30 fps; the model reads the last {}",

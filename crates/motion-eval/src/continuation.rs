@@ -163,6 +163,7 @@ pub fn continue_clip(
                 context: k,
                 seed,
                 pace_gain: run.pace_gain,
+                draws: run.draws,
                 ask: match run.ask {
                     Asking::Nothing => None,
                     Asking::One(_, a) => Some(a),

@@ -128,6 +128,11 @@ pub struct Horizon {
     /// report written before it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pace_gain: Option<f64>,
+    /// The draws of noise each run of a held motion was chosen from
+    /// ([`motion_vrnn::generate::POSE_DRAWS`]; absent: not held, or a report
+    /// written before draws were).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub draws: Option<usize>,
     /// The stretches, in order.
     pub stretches: Vec<Stretch>,
 }
@@ -228,7 +233,8 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
         frechet_reference: motion_metrics::frechet(&test_summaries, &train_summaries),
         real_pose_spread: Some(real_pose_spread),
         frechet_draws: frechet_draws(&test_summaries, &train_summaries, o.motions, spec.seed),
-        pace_gain: m.held_pace(),
+        pace_gain: m.held_pace().map(|h| h.0),
+        draws: m.held_pace().map(|h| h.1),
         stretches: out,
     })
 }
@@ -335,13 +341,21 @@ pub fn misses(h: &Horizon, st: &Stretch) -> Vec<&'static str> {
 }
 
 /// The sentence a report says its motions were held to their asked pace
-/// with (`gain`: [`Horizon::pace_gain`]; None: nothing).
-pub fn held_sentence(gain: Option<f64>) -> String {
+/// with (`gain`: [`Horizon::pace_gain`]; `draws`: [`Horizon::draws`];
+/// None: nothing).
+pub fn held_sentence(gain: Option<f64>, draws: Option<usize>) -> String {
+    let chosen = match draws {
+        Some(d) if d > 1 => format!(
+            "; each motion kept, of {d} draws of noise so held, the one whose mean pose is \
+             closest to its context's (`--draws`)"
+        ),
+        _ => String::new(),
+    };
     match gain {
         Some(g) => format!(
             " Each motion held to its asked pace: each run of at most {} frames tried {} times \
              on its noise, the pace asked for moved by {g} × (target − the pace the try made) \
-             after each (`--pace-gain`, `docs/metrics.md`).",
+             after each (`--pace-gain`){chosen} (`docs/metrics.md`).",
             motion_vrnn::generate::PACE_EVERY,
             motion_vrnn::generate::PACE_CORRECTIONS + 1
         ),
@@ -367,7 +381,7 @@ pub fn markdown(h: &Horizon) -> String {
         h.real_windows,
         h.motions.min(h.real_windows / 2),
         h.frechet_reference,
-        held = held_sentence(h.pace_gain)
+        held = held_sentence(h.pace_gain, h.draws)
     );
     for (name, _) in MEASURES {
         s += &format!(" {name} |");
@@ -485,6 +499,7 @@ mod tests {
             real_pose_spread: None,
             frechet_draws: None,
             pace_gain: None,
+            draws: None,
             stretches: vec![Stretch {
                 start_s: 0.0,
                 generated: stretch,
@@ -518,7 +533,12 @@ mod tests {
         let json = serde_json::to_value(&h).expect("serialises");
         assert!(json.get("pace_gain").is_none(), "absent when not held");
         h.pace_gain = Some(0.5);
+        h.draws = Some(8);
         let md = markdown(&h);
+        assert!(
+            md.contains("of 8 draws of noise so held, the one whose mean pose"),
+            "{md}"
+        );
         assert!(
             md.contains("held to its asked pace: each run of at most 128 frames tried 4 times"),
             "{md}"
@@ -526,7 +546,10 @@ mod tests {
         assert!(md.contains("moved by 0.5 × (target − the pace"), "{md}");
         let back: Horizon =
             serde_json::from_value(serde_json::to_value(&h).expect("serialises")).expect("reads");
-        assert_eq!(back.pace_gain, Some(0.5));
+        assert_eq!((back.pace_gain, back.draws), (Some(0.5), Some(8)));
+        // One draw is not a choice.
+        h.draws = Some(1);
+        assert!(!markdown(&h).contains("draws of noise"));
     }
 
     #[test]

@@ -54,6 +54,10 @@ pub struct EvalReport {
     /// written before 4-second motions were).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pace_gain: Option<f64>,
+    /// The draws of noise each run of a held motion was chosen from
+    /// ([`motion_vrnn::generate::POSE_DRAWS`]; absent as `pace_gain`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub draws: Option<usize>,
     pub windows: usize,
     pub frames: usize,
     /// Per frame, on the split, with the training noise convention.
@@ -181,7 +185,8 @@ pub fn report(
         context: a.context,
         contexts,
         temperature: m.model.model.config().parts.temperature.unwrap_or(1.0),
-        pace_gain: m.held_pace(),
+        pace_gain: m.held_pace().map(|h| h.0),
+        draws: m.held_pace().map(|h| h.1),
         windows: w.n,
         frames: w.length,
         neg_elbo_per_frame: (recon + kl) / t,
@@ -226,7 +231,7 @@ pub fn markdown(r: &EvalReport) -> String {
             Contexts::Split => format!("one `{}` window (every window once)", r.split),
             Contexts::Train => "a random training window".to_string(),
         },
-        crate::horizon::held_sentence(r.pace_gain)
+        crate::horizon::held_sentence(r.pace_gain, r.draws)
     );
     s += &format!(
         "Per frame on `{}`: negative ELBO **{:.3}** = reconstruction {:.3} + KL {:.3} (normalised units).\n\n",

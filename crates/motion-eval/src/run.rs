@@ -45,9 +45,12 @@ pub struct RunSpec {
     pub category: Option<String>,
     /// Guidance scale of the category ([`motion_vrnn::Config::condition`]).
     pub guidance: f64,
-    /// How hard a long motion is held to its asked pace
+    /// How hard a motion is held to its asked pace
     /// ([`generate::PACE_GAIN`]; 0: not at all).
     pub pace_gain: f64,
+    /// Draws each run of a held motion is chosen from
+    /// ([`generate::POSE_DRAWS`]; at least 1).
+    pub draws: usize,
 }
 
 impl RunSpec {
@@ -68,6 +71,7 @@ impl RunSpec {
             category: None,
             guidance: generate::GUIDANCE,
             pace_gain: generate::PACE_GAIN,
+            draws: generate::POSE_DRAWS,
         }
     }
 }
@@ -93,9 +97,11 @@ pub struct Run {
     /// Whether `--category` was given (a clip continued by a conditioned
     /// model asks for no category unless told one).
     pub asked_explicitly: bool,
-    /// How hard long motions are held to their asked pace
+    /// How hard motions are held to their asked pace
     /// ([`RunSpec::pace_gain`]).
     pub pace_gain: f64,
+    /// Draws each run of a held motion is chosen from ([`RunSpec::draws`]).
+    pub draws: usize,
 }
 
 /// `--category own`: each motion asks for the category of the window it
@@ -161,6 +167,11 @@ impl Run {
                 spec.pace_gain
             )));
         }
+        if spec.draws == 0 {
+            return Err(EvalError::Invalid(
+                "--draws must be 1 or more (1: the one draw of noise)".into(),
+            ));
+        }
         let invalid = |e: String| EvalError::Invalid(format!("--category: {}: {e}", ck.display()));
         let ask = match spec.category.as_deref() {
             // A conditioned model's motions ask for their contexts' categories
@@ -209,14 +220,16 @@ impl Run {
             ask,
             asked_explicitly: spec.category.is_some(),
             pace_gain: spec.pace_gain,
+            draws: spec.draws,
         })
     }
 
-    /// The gain long motions are held to their asked pace with, where they
-    /// are ([`generate::held_gain`]).
-    pub fn held_pace(&self) -> Option<f64> {
+    /// The gain motions are held to their asked pace with, and the draws
+    /// each run is chosen from, where they are held ([`generate::held_gain`]).
+    pub fn held_pace(&self) -> Option<(f64, usize)> {
         let config = self.model.model.config();
         generate::held_gain(config, self.pace_gain, self.ask != Asking::Nothing)
+            .map(|g| (g, self.draws))
     }
 
     /// The windows of split `name`, or an error when it has none.
@@ -297,6 +310,7 @@ impl Run {
             context,
             seed,
             pace_gain: self.pace_gain,
+            draws: self.draws,
             ask: match ask {
                 Asking::One(_, a) => Some(a),
                 _ => None,

@@ -70,6 +70,9 @@ pub struct Rollout {
     /// How hard a motion is held to its asked pace (a model with the pace
     /// part, asked for a category; 0: not at all): [`PACE_GAIN`].
     pub pace_gain: f64,
+    /// Draws of noise each run of a held motion is chosen from (1: the one
+    /// draw): [`POSE_DRAWS`].
+    pub draws: usize,
 }
 
 /// How hard a motion is held to its asked pace, unless told otherwise
@@ -95,6 +98,20 @@ pub const PACE_CORRECTIONS: usize = 3;
 /// Frames per run of a motion held to its pace ([`PACE_GAIN`]): one
 /// window's length.
 pub const PACE_EVERY: usize = 128;
+
+/// Draws of noise each run of a held motion ([`PACE_GAIN`]) is chosen from,
+/// unless told otherwise (`--draws`). Held to its pace, a long motion still
+/// drifts away from the poses it started in: over a minute the motions'
+/// average poses spread apart (1.8× as far as real windows'), which is what
+/// kept the Fréchet distance above its reference. So each run is made from
+/// this many draws of noise (each held to its pace), and each motion keeps
+/// the draw whose mean pose (the mean of its normalised features over the
+/// run's frames) is closest to the mean pose of the frames it first
+/// continued: its context, nothing after it. 8 was chosen on `val` over 1
+/// and 4, then checked on nine seeds (`docs/training.md`, "Chosen among
+/// draws"). A draw is four samplings ([`PACE_CORRECTIONS`]), so 8 draws
+/// make a held motion 32 times the work of a free one.
+pub const POSE_DRAWS: usize = 8;
 
 /// The gain a motion of `config`'s model is held to its pace with
 /// ([`PACE_GAIN`]): `gain` where the model reads a pace, a category is
@@ -208,7 +225,7 @@ pub fn continue_windows_with(
     let whole = starts.batch(picks, device)?;
     // A model with the pace part is asked for each window's own pace, as
     // it was trained (the whole window's, not its context's).
-    let mut cond = config.paced(cond.as_ref(), Some(&whole))?;
+    let cond = config.paced(cond.as_ref(), Some(&whole))?;
     let frames = o.frames.max(1);
     // Held to that pace ([`PACE_GAIN`]): the target, and the weights asking
     // for it that each run's corrections start from.
@@ -226,22 +243,37 @@ pub fn continue_windows_with(
         .min(if held.is_some() { PACE_EVERY } else { frames });
     let mut out: Vec<Vec<f32>> = vec![Vec::with_capacity(frames * f); n];
     let mut context = whole.narrow(1, 0, k)?;
+    // The mean pose a held motion's draws are chosen by ([`POSE_DRAWS`]).
+    let pose = context.mean(1)?;
     let mut made = 0;
     for run in 0u64.. {
         // New frames of this run; the first run also gives the start frame
         // (its context's last).
         let new = segment.min(frames - made.max(1));
-        let eps = noise(o.seed ^ 0x5A3F1E, run, k + new, n, latent, device)?;
-        if let Some((target, asking)) = &held {
-            let tries = Tries {
-                eps: &eps,
-                context: &context,
-                new,
-            };
-            cond = Some(held_to_pace(model, &tries, asking, target, o.pace_gain)?);
-        }
-        let x = model.sample(&eps, Some(&context), cond.as_ref())?;
-        let x = x.narrow(1, k - 1, new + 1)?;
+        let draw = |d: u64| {
+            noise(
+                o.seed ^ 0x5A3F1E ^ (d << 40),
+                run,
+                k + new,
+                n,
+                latent,
+                device,
+            )
+        };
+        let x = match &held {
+            Some((target, asking)) => {
+                let pace = Pace {
+                    target,
+                    asking,
+                    gain: o.pace_gain,
+                    pose: &pose,
+                };
+                chosen_run(model, &draw, &context, new, &pace, o.draws)?
+            }
+            None => model
+                .sample(&draw(0)?, Some(&context), cond.as_ref())?
+                .narrow(1, k - 1, new + 1)?,
+        };
         let v = x.flatten_all()?.to_vec1::<f32>()?;
         for (m, o) in v.chunks((new + 1) * f).zip(out.iter_mut()) {
             o.extend_from_slice(if made == 0 { m } else { &m[f..] });
@@ -288,6 +320,52 @@ fn held_to_pace(
         cond = config.asking_pace(asking, &want)?;
     }
     Ok(cond)
+}
+
+/// What a held motion's runs are held to: the pace `target`, the weights
+/// `asking` for it, the `gain` ([`held_to_pace`]) and the mean `pose`
+/// (`[n, features]`) its draws are chosen by ([`POSE_DRAWS`]).
+struct Pace<'a> {
+    target: &'a candle_core::Tensor,
+    asking: &'a candle_core::Tensor,
+    gain: f64,
+    pose: &'a candle_core::Tensor,
+}
+
+/// The frames `[n, new + 1, features]` of a held run after `context`: of
+/// `draws` draws of noise (`draw(d)`), each held to its pace
+/// ([`held_to_pace`]), each motion keeps the one whose mean pose is closest
+/// to `pace.pose` (the earlier on a tie).
+fn chosen_run(
+    model: &dyn MotionModel,
+    draw: &dyn Fn(u64) -> candle_core::Result<candle_core::Tensor>,
+    context: &candle_core::Tensor,
+    new: usize,
+    pace: &Pace,
+    draws: usize,
+) -> candle_core::Result<candle_core::Tensor> {
+    let k = context.dim(1)?;
+    let one = |d: u64| -> candle_core::Result<(Vec<f32>, candle_core::Tensor)> {
+        let eps = draw(d)?;
+        let tries = Tries {
+            eps: &eps,
+            context,
+            new,
+        };
+        let c = held_to_pace(model, &tries, pace.asking, pace.target, pace.gain)?;
+        let x = model.sample(&eps, Some(context), Some(&c))?;
+        let x = x.narrow(1, k - 1, new + 1)?;
+        Ok(((x.mean(1)? - pace.pose)?.sqr()?.sum(1)?.to_vec1()?, x))
+    };
+    let (mut off, mut x) = one(0)?;
+    for d in 1..draws.max(1) as u64 {
+        let (o, y) = one(d)?;
+        let closer: Vec<u8> = o.iter().zip(&off).map(|(a, b)| u8::from(a < b)).collect();
+        let mask = candle_core::Tensor::from_vec(closer, (o.len(), 1, 1), x.device())?;
+        x = mask.broadcast_as(y.shape())?.where_cond(&y, &x)?;
+        off = o.iter().zip(&off).map(|(a, b)| a.min(*b)).collect();
+    }
+    Ok(x)
 }
 
 /// Sampling seed of the judge: apart from the seeds `cargo xtask eval` and
@@ -397,6 +475,7 @@ impl<'a> Judge<'a> {
             seed: JUDGE_SEED,
             ask: None,
             pace_gain: 0.0,
+            draws: 1,
         };
         // A conditioned model is asked for each context's own category.
         let picks = picks(rollout.seed, n, self.starts.n);

@@ -1090,54 +1090,92 @@ fn motions_are_held_to_their_pace_run_by_run() {
         row: 1,
         guidance: 1.25,
     });
-    let run = |m: &motion_vrnn::model::Vrnn, frames, picks: &[usize], ask, pace_gain| {
+    let run = |m: &motion_vrnn::model::Vrnn, frames, picks: &[usize], ask, pace_gain, draws| {
         let o = Rollout {
             frames,
             context: k,
             seed: 2,
             ask,
             pace_gain,
+            draws,
         };
         continue_windows(m, &windows, picks, &o, &Device::Cpu).unwrap()
     };
-    // One window, by hand: the weights asking for the window's pace, tried
-    // on the run's noise, each try's ask moved by gain × (target − made).
+    // One window, by hand: the weights asking for each window's pace, tried
+    // on the draw's noise, each try's ask moved by gain × (target − made).
     let one = PACE_EVERY + 1;
-    let held = run(&paced.model, one, &[1], walk, PACE_GAIN);
     let c = paced.model.config();
-    let whole = windows.batch(&[1], &Device::Cpu).unwrap();
-    let asking = c
-        .paced(Some(&ask(&paced, &[Some(1)], 1.25)), Some(&whole))
-        .unwrap()
-        .unwrap();
-    let (target, context) = (pace(&whole).unwrap(), whole.narrow(1, 0, k).unwrap());
-    let eps =
-        motion_vrnn::rng::noise(2 ^ 0x5A3F1E, 0, k + one - 1, 1, c.latent, &Device::Cpu).unwrap();
-    let made = |cond: &Tensor| {
-        let x = paced
-            .model
-            .sample(&eps, Some(&context), Some(cond))
+    let by_hand = |picks: &[usize], d: u64, held: bool| {
+        let whole = windows.batch(picks, &Device::Cpu).unwrap();
+        let rows: Vec<_> = picks.iter().map(|_| Some(1)).collect();
+        let asking = c
+            .paced(Some(&ask(&paced, &rows, 1.25)), Some(&whole))
+            .unwrap()
             .unwrap();
-        x.narrow(1, k - 1, one).unwrap()
+        let (target, context) = (pace(&whole).unwrap(), whole.narrow(1, 0, k).unwrap());
+        let seed = 2 ^ 0x5A3F1E ^ (d << 40);
+        let eps =
+            motion_vrnn::rng::noise(seed, 0, k + one - 1, picks.len(), c.latent, &Device::Cpu)
+                .unwrap();
+        let made = |cond: &Tensor| {
+            let x = paced
+                .model
+                .sample(&eps, Some(&context), Some(cond))
+                .unwrap();
+            x.narrow(1, k - 1, one).unwrap()
+        };
+        let (mut want, mut cond) = (target.clone(), asking.clone());
+        for _ in 0..PACE_CORRECTIONS * usize::from(held) {
+            let off = (&target - pace(&made(&cond)).unwrap()).unwrap();
+            want = (&want + (off * PACE_GAIN).unwrap()).unwrap();
+            cond = c.asking_pace(&asking, &want).unwrap();
+        }
+        (made(&cond), context.mean(1).unwrap())
     };
-    let (mut want, mut cond) = (target.clone(), asking.clone());
-    for _ in 0..PACE_CORRECTIONS {
-        let off = (&target - pace(&made(&cond)).unwrap()).unwrap();
-        want = (&want + (off * PACE_GAIN).unwrap()).unwrap();
-        cond = c.asking_pace(&asking, &want).unwrap();
-    }
-    assert_eq!(held[0], flat(&made(&cond)));
-    let free = run(&paced.model, one, &[1], walk, 0.0);
+    let held = run(&paced.model, one, &[1], walk, PACE_GAIN, 1);
+    assert_eq!(held[0], flat(&by_hand(&[1], 0, true).0));
+    let free = run(&paced.model, one, &[1], walk, 0.0, 1);
     assert_eq!(held[0][..f], free[0][..f], "the same start frame");
     assert_ne!(held[0][f..], free[0][f..], "asked for another pace");
-    assert_eq!(free[0], flat(&made(&asking)), "not held: asked as trained");
+    assert_eq!(
+        free[0],
+        flat(&by_hand(&[1], 0, false).0),
+        "not held: as trained"
+    );
+    // Chosen among draws: each motion keeps the held draw whose mean pose is
+    // closest to its context's.
+    let picks = [0, 1, 2];
+    let draws: Vec<_> = (0..3).map(|d| by_hand(&picks, d, true)).collect();
+    let chosen = run(&paced.model, one, &picks, walk, PACE_GAIN, 3);
+    let mut kept = Vec::new();
+    for (i, motion) in chosen.iter().enumerate() {
+        let off = |(x, pose): &(Tensor, Tensor)| {
+            let x = x.get(i).unwrap();
+            let d = (x.mean(0).unwrap() - pose.get(i).unwrap()).unwrap();
+            d.sqr()
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap()
+        };
+        let offs: Vec<f32> = draws.iter().map(off).collect();
+        let best = (0..3).fold(0, |b, d| if offs[d] < offs[b] { d } else { b });
+        assert_eq!(*motion, flat(&draws[best].0.get(i).unwrap()), "motion {i}");
+        kept.push(best);
+    }
+    assert_ne!(
+        kept,
+        [0, 0, 0],
+        "some motion keeps another draw than the first"
+    );
     // A long motion: runs of PACE_EVERY, each held, each restarting on the
     // last frames made.
     let frames = 2 * PACE_EVERY + 20;
-    let held = run(&paced.model, frames, &[0, 2], walk, PACE_GAIN);
+    let held = run(&paced.model, frames, &[0, 2], walk, PACE_GAIN, 2);
     let mut restarted = paced.model.clone();
     restarted.set_restart(Some(PACE_EVERY));
-    let runs = run(&restarted, frames, &[0, 2], walk, 0.0);
+    let runs = run(&restarted, frames, &[0, 2], walk, 0.0, 2);
     let first = (PACE_EVERY + 1) * f;
     for (h, r) in held.iter().zip(&runs) {
         assert_eq!(h.len(), frames * f);
@@ -1146,14 +1184,14 @@ fn motions_are_held_to_their_pace_run_by_run() {
     }
     assert_eq!(
         held,
-        run(&paced.model, frames, &[0, 2], walk, PACE_GAIN),
+        run(&paced.model, frames, &[0, 2], walk, PACE_GAIN, 2),
         "the same seed, the same motion"
     );
     // Nothing to hold without a pace asked: no category, or no pace part.
     for (m, a) in [(&paced.model, None), (&plain.model, walk)] {
         assert_eq!(
-            run(m, frames, &[0, 2], a, PACE_GAIN),
-            run(m, frames, &[0, 2], a, 0.0)
+            run(m, frames, &[0, 2], a, PACE_GAIN, 2),
+            run(m, frames, &[0, 2], a, 0.0, 1)
         );
     }
 }
