@@ -299,25 +299,24 @@ struct Tries<'a> {
     new: usize,
 }
 
-/// The condition weights a run is kept with, held to the pace `target`
-/// (`[n, PACE_FEATURES]`) at `gain` ([`PACE_GAIN`]): from `asking` (the
-/// weights asking for `target`), [`PACE_CORRECTIONS`] tries, each moving the
-/// pace asked for by `gain × (target − made)`, `made` the pace of the try's
-/// frames (the context's last and the new ones).
+/// The condition weights a run is kept with, held to `pace.target`
+/// (`[n, PACE_FEATURES]`) at `pace.gain` ([`PACE_GAIN`]): from
+/// `pace.asking` (the weights asking for the target), [`PACE_CORRECTIONS`]
+/// tries, each moving the pace asked for by `gain × (target − made)`,
+/// `made` the pace of the try's frames (the context's last and the new
+/// ones).
 fn held_to_pace(
     model: &dyn MotionModel,
     run: &Tries,
-    asking: &candle_core::Tensor,
-    target: &candle_core::Tensor,
-    gain: f64,
+    pace: &Pace,
 ) -> candle_core::Result<candle_core::Tensor> {
     let (config, k) = (model.config(), run.context.dim(1)?);
-    let (mut want, mut cond) = (target.clone(), asking.clone());
+    let (mut want, mut cond) = (pace.target.clone(), pace.asking.clone());
     for _ in 0..PACE_CORRECTIONS {
         let x = model.sample(run.eps, Some(run.context), Some(&cond))?;
         let made = crate::model::pace(&x.narrow(1, k - 1, run.new + 1)?)?;
-        want = (&want + ((target - &made)? * gain)?)?;
-        cond = config.asking_pace(asking, &want)?;
+        want = (&want + ((pace.target - &made)? * pace.gain)?)?;
+        cond = config.asking_pace(pace.asking, &want)?;
     }
     Ok(cond)
 }
@@ -352,7 +351,7 @@ fn chosen_run(
             context,
             new,
         };
-        let c = held_to_pace(model, &tries, pace.asking, pace.target, pace.gain)?;
+        let c = held_to_pace(model, &tries, pace)?;
         let x = model.sample(&eps, Some(context), Some(&c))?;
         let x = x.narrow(1, k - 1, new + 1)?;
         Ok(((x.mean(1)? - pace.pose)?.sqr()?.sum(1)?.to_vec1()?, x))
