@@ -223,6 +223,7 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
             }
         })
         .collect();
+    let held = m.held_pace();
     Ok(Horizon {
         seconds: (stretches * len) as f64 / fps,
         motions: o.motions,
@@ -233,8 +234,8 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
         frechet_reference: motion_metrics::frechet(&test_summaries, &train_summaries),
         real_pose_spread: Some(real_pose_spread),
         frechet_draws: frechet_draws(&test_summaries, &train_summaries, o.motions, spec.seed),
-        pace_gain: m.held_pace().map(|h| h.0),
-        draws: m.held_pace().map(|h| h.1),
+        pace_gain: held.map(|h| h.0),
+        draws: held.map(|h| h.1),
         stretches: out,
     })
 }

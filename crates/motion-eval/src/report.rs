@@ -175,6 +175,7 @@ pub fn report(
     let s_real = summaries(&real);
     let s_train = summaries(&train_windows);
     let (s_rec, s_gen) = (summaries(&rec), summaries(&gen));
+    let held = m.held_pace();
     let report = EvalReport {
         run: a.run.display().to_string(),
         checkpoint: a.checkpoint.clone(),
@@ -185,8 +186,8 @@ pub fn report(
         context: a.context,
         contexts,
         temperature: m.model.model.config().parts.temperature.unwrap_or(1.0),
-        pace_gain: m.held_pace().map(|h| h.0),
-        draws: m.held_pace().map(|h| h.1),
+        pace_gain: held.map(|h| h.0),
+        draws: held.map(|h| h.1),
         windows: w.n,
         frames: w.length,
         neg_elbo_per_frame: (recon + kl) / t,

@@ -227,10 +227,16 @@ pub fn continue_windows_with(
     // it was trained (the whole window's, not its context's).
     let cond = config.paced(cond.as_ref(), Some(&whole))?;
     let frames = o.frames.max(1);
-    // Held to that pace ([`PACE_GAIN`]): the target, and the weights asking
-    // for it that each run's corrections start from.
+    // Held to that pace ([`PACE_GAIN`]): the target, the weights asking for
+    // it that each run's corrections start from, and the context's mean
+    // pose each run's draws are chosen by ([`POSE_DRAWS`]).
     let held = match (held_gain(config, o.pace_gain, cond.is_some()), &cond) {
-        (Some(_), Some(c)) => Some((crate::model::pace(&whole)?, c.clone())),
+        (Some(gain), Some(c)) => Some(Pace {
+            target: crate::model::pace(&whole)?,
+            asking: c.clone(),
+            gain,
+            pose: whole.narrow(1, 0, k)?.mean(1)?,
+        }),
         _ => None,
     };
     // One run of the recurrence, or runs of `segment` new frames, each
@@ -243,8 +249,6 @@ pub fn continue_windows_with(
         .min(if held.is_some() { PACE_EVERY } else { frames });
     let mut out: Vec<Vec<f32>> = vec![Vec::with_capacity(frames * f); n];
     let mut context = whole.narrow(1, 0, k)?;
-    // The mean pose a held motion's draws are chosen by ([`POSE_DRAWS`]).
-    let pose = context.mean(1)?;
     let mut made = 0;
     for run in 0u64.. {
         // New frames of this run; the first run also gives the start frame
@@ -261,15 +265,7 @@ pub fn continue_windows_with(
             )
         };
         let x = match &held {
-            Some((target, asking)) => {
-                let pace = Pace {
-                    target,
-                    asking,
-                    gain: o.pace_gain,
-                    pose: &pose,
-                };
-                chosen_run(model, &draw, &context, new, &pace, o.draws)?
-            }
+            Some(pace) => chosen_run(model, &draw, &context, new, pace, o.draws)?,
             None => model
                 .sample(&draw(0)?, Some(&context), cond.as_ref())?
                 .narrow(1, k - 1, new + 1)?,
@@ -315,8 +311,8 @@ fn held_to_pace(
     for _ in 0..PACE_CORRECTIONS {
         let x = model.sample(run.eps, Some(run.context), Some(&cond))?;
         let made = crate::model::pace(&x.narrow(1, k - 1, run.new + 1)?)?;
-        want = (&want + ((pace.target - &made)? * pace.gain)?)?;
-        cond = config.asking_pace(pace.asking, &want)?;
+        want = (&want + ((&pace.target - &made)? * pace.gain)?)?;
+        cond = config.asking_pace(&pace.asking, &want)?;
     }
     Ok(cond)
 }
@@ -324,11 +320,11 @@ fn held_to_pace(
 /// What a held motion's runs are held to: the pace `target`, the weights
 /// `asking` for it, the `gain` ([`held_to_pace`]) and the mean `pose`
 /// (`[n, features]`) its draws are chosen by ([`POSE_DRAWS`]).
-struct Pace<'a> {
-    target: &'a candle_core::Tensor,
-    asking: &'a candle_core::Tensor,
+struct Pace {
+    target: candle_core::Tensor,
+    asking: candle_core::Tensor,
     gain: f64,
-    pose: &'a candle_core::Tensor,
+    pose: candle_core::Tensor,
 }
 
 /// The frames `[n, new + 1, features]` of a held run after `context`: of
@@ -354,7 +350,7 @@ fn chosen_run(
         let c = held_to_pace(model, &tries, pace)?;
         let x = model.sample(&eps, Some(context), Some(&c))?;
         let x = x.narrow(1, k - 1, new + 1)?;
-        Ok(((x.mean(1)? - pace.pose)?.sqr()?.sum(1)?.to_vec1()?, x))
+        Ok(((x.mean(1)? - &pace.pose)?.sqr()?.sum(1)?.to_vec1()?, x))
     };
     let (mut off, mut x) = one(0)?;
     for d in 1..draws.max(1) as u64 {

@@ -210,6 +210,14 @@ pub struct Parts {
 /// `root_y`, `vel_x`, `vel_z`, `ang_vel_y`.
 pub const PACE_FEATURES: [usize; 4] = [0, 55, 56, 57];
 
+/// Category weights `cond: [B, categories + 1]` with the pace `[B,
+/// PACE_FEATURES]` as their last columns, weighed like the category (`1 −`
+/// the weight of row 0): [`Config::paced`], [`Config::asking_pace`].
+fn with_pace(cond: &Tensor, pace: &Tensor) -> Result<Tensor> {
+    let asked = cond.narrow(1, 0, 1)?.affine(-1.0, 1.0)?;
+    Tensor::cat(&[cond, &pace.broadcast_mul(&asked)?], 1)
+}
+
 /// The pace of sequences `x: [B, T, ≥ 58]` (normalised features): the mean
 /// over the frames of each of [`PACE_FEATURES`], `[B, 4]`.
 pub fn pace(x: &Tensor) -> Result<Tensor> {
@@ -415,8 +423,7 @@ impl Config {
                 cond.device(),
             )?,
         };
-        let asked = cond.narrow(1, 0, 1)?.affine(-1.0, 1.0)?;
-        Tensor::cat(&[cond, &pace.broadcast_mul(&asked)?], 1).map(Some)
+        with_pace(cond, &pace).map(Some)
     }
 
     /// `cond` (paced, [`Config::paced`]) asking for the pace `want`
@@ -432,8 +439,7 @@ impl Config {
                 cond.shape()
             );
         }
-        let asked = cond.narrow(1, 0, 1)?.affine(-1.0, 1.0)?;
-        Tensor::cat(&[&cond.narrow(1, 0, w)?, &want.broadcast_mul(&asked)?], 1)
+        with_pace(&cond.narrow(1, 0, w)?, want)
     }
 
     /// Condition weights `[B, categories + 1]` for sequences asking for
