@@ -128,7 +128,7 @@ pub struct TrainArgs {
     /// Window-long stretches the judge rolls its motions out for (scores the first and the last; 1: one window).
     #[arg(long)]
     pub judge_stretches: Option<usize>,
-    /// `category` (the `standard` preset's): condition on each window's category, so `sample --category walk` can ask for one; `category+pace` (`minute`'s): and on its pace; `none`: neither (`quick`, `paper`).
+    /// `category` (the `standard` preset's): condition on each window's category, so `sample --category walk` can ask for one; `category+pace` (`minute`'s): and on its pace; `category+pace+speed`: the pace with the root's mean speed (measured, not adopted); `none`: neither (`quick`, `paper`).
     #[arg(long)]
     pub condition: Option<ConditionOn>,
     /// Share of windows trained without their category (--condition category).

@@ -232,7 +232,7 @@ pub fn continue_windows_with(
     // pose each run's draws are chosen by ([`POSE_DRAWS`]).
     let held = match (held_gain(config, o.pace_gain, cond.is_some()), &cond) {
         (Some(gain), Some(c)) => Some(Pace {
-            target: crate::model::pace(&whole)?,
+            target: config.pace_of(&whole)?,
             asking: c.clone(),
             gain,
             pose: whole.narrow(1, 0, k)?.mean(1)?,
@@ -310,7 +310,7 @@ fn held_to_pace(
     let (mut want, mut cond) = (pace.target.clone(), pace.asking.clone());
     for _ in 0..PACE_CORRECTIONS {
         let x = model.sample(run.eps, Some(run.context), Some(&cond))?;
-        let made = crate::model::pace(&x.narrow(1, k - 1, run.new + 1)?)?;
+        let made = config.pace_of(&x.narrow(1, k - 1, run.new + 1)?)?;
         want = (&want + ((&pace.target - &made)? * pace.gain)?)?;
         cond = config.asking_pace(&pace.asking, &want)?;
     }

@@ -184,6 +184,12 @@ pub struct Parts {
     /// [`Config::categories`].
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub pace: bool,
+    /// The pace also holds the root's mean horizontal speed ([`root_speed`],
+    /// m/s less [`SPEED_CENTRE_M_S`]) as its last column: a motion that
+    /// goes back and forth has a speed and no mean velocity. Needs
+    /// [`Parts::pace`] and [`Config::body`].
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub pace_speed: bool,
     /// The foot lock's contact loss counts a real toe as planted only where
     /// it is low and also slides less than this in the world (m/s; None:
     /// low is enough, as before). A toe below 5 cm still slides at toe-off
@@ -226,6 +232,26 @@ pub fn pace(x: &Tensor) -> Result<Tensor> {
         .map(|&f| x.narrow(2, f, 1))
         .collect::<Result<Vec<_>>>()?;
     Tensor::cat(&columns, 2)?.mean(1)
+}
+
+/// What the speed column of the pace ([`Parts::pace_speed`]) is counted
+/// from, m/s: a fixed offset that keeps the column near the others' scale
+/// (the shared samples' categories move at 0.07–0.70 m/s on average), so
+/// a model asked for no frames' pace ([`Config::paced`]) asks for 1 m/s.
+pub const SPEED_CENTRE_M_S: f64 = 1.0;
+
+/// The mean horizontal speed of the root over the frames of each of `x:
+/// [B, T, ≥ 58]` (normalised features, `body`'s statistics), CMU units a
+/// frame: `[B]`. Unlike the [`pace`]'s mean velocity, a motion that goes
+/// back and forth has it.
+pub fn root_speed(x: &Tensor, body: &Body) -> Result<Tensor> {
+    use mocap_ingest::features::{VEL_X, VEL_Z};
+    let unit = |f: usize| {
+        x.narrow(2, f, 1)?
+            .affine(f64::from(body.std[f]), f64::from(body.mean[f]))?
+            .sqr()
+    };
+    (unit(VEL_X)? + unit(VEL_Z)?)?.sqrt()?.mean(1)?.squeeze(1)
 }
 
 impl Parts {
@@ -398,9 +424,25 @@ impl Config {
     /// ([`Parts::pace`]), or none.
     pub fn pace_columns(&self) -> usize {
         if self.parts.pace {
-            PACE_FEATURES.len()
+            PACE_FEATURES.len() + usize::from(self.parts.pace_speed)
         } else {
             0
+        }
+    }
+
+    /// The pace of sequences `x: [B, T, ≥ 58]` as this model reads it:
+    /// [`pace`], and with [`Parts::pace_speed`] the root's mean speed
+    /// (m/s less [`SPEED_CENTRE_M_S`]) after it, `[B, pace_columns]`.
+    pub fn pace_of(&self, x: &Tensor) -> Result<Tensor> {
+        let p = pace(x)?;
+        match (&self.body, self.parts.pace_speed) {
+            (Some(body), true) => {
+                let per_unit =
+                    motion_metrics::Options::default().fps * motion_metrics::METRES_PER_UNIT;
+                let s = root_speed(x, body)?.affine(per_unit, -SPEED_CENTRE_M_S)?;
+                Tensor::cat(&[&p, &s.unsqueeze(1)?], 1)
+            }
+            _ => Ok(p),
         }
     }
 
@@ -416,9 +458,9 @@ impl Config {
             return Ok(cond.cloned());
         };
         let pace = match x {
-            Some(x) if x.dim(1)? > 0 => pace(x)?,
+            Some(x) if x.dim(1)? > 0 => self.pace_of(x)?,
             _ => Tensor::zeros(
-                (cond.dim(0)?, PACE_FEATURES.len()),
+                (cond.dim(0)?, self.pace_columns()),
                 DType::F32,
                 cond.device(),
             )?,
@@ -432,10 +474,10 @@ impl Config {
     /// how a motion is held to its pace ([`crate::generate::PACE_GAIN`]).
     pub fn asking_pace(&self, cond: &Tensor, want: &Tensor) -> Result<Tensor> {
         let w = self.categories.len() + 1;
-        if !self.parts.pace || cond.dim(1)? != w + PACE_FEATURES.len() {
+        if !self.parts.pace || cond.dim(1)? != w + self.pace_columns() {
             candle_core::bail!(
                 "asking_pace: a paced condition of {} columns, got {:?}",
-                w + PACE_FEATURES.len(),
+                w + self.pace_columns(),
                 cond.shape()
             );
         }
@@ -793,6 +835,11 @@ impl Vrnn {
         {
             candle_core::bail!(
                 "the pace part needs a model conditioned on the category and the 58 features"
+            );
+        }
+        if c.parts.pace_speed && !(c.parts.pace && c.body.is_some()) {
+            candle_core::bail!(
+                "the pace's speed needs the pace part and the skeleton's statistics"
             );
         }
         positive("kl_weight", c.parts.kl_weight)?;

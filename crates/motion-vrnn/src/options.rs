@@ -96,6 +96,9 @@ pub enum ConditionOn {
     /// The category and the pace of each window
     /// ([`crate::model::Parts::pace`]).
     CategoryPace,
+    /// The category and the pace with the root's speed
+    /// ([`crate::model::Parts::pace_speed`]).
+    CategoryPaceSpeed,
 }
 
 impl std::str::FromStr for ConditionOn {
@@ -105,8 +108,9 @@ impl std::str::FromStr for ConditionOn {
             "none" => Ok(ConditionOn::None),
             "category" => Ok(ConditionOn::Category),
             "category+pace" => Ok(ConditionOn::CategoryPace),
+            "category+pace+speed" => Ok(ConditionOn::CategoryPaceSpeed),
             _ => Err(format!(
-                "unknown condition {s:?}; choose `category`, `category+pace` or `none`"
+                "unknown condition {s:?}; choose `category`, `category+pace`, `category+pace+speed` or `none`"
             )),
         }
     }
@@ -322,12 +326,14 @@ impl Overrides {
             Some(ConditionOn::None) => {
                 cfg.condition = None;
                 cfg.model.parts.pace = false;
+                cfg.model.parts.pace_speed = false;
             }
             Some(on) => {
                 cfg.condition = Some(crate::train::Conditioning {
                     dropout: crate::train::CONDITION_DROPOUT,
                 });
-                cfg.model.parts.pace = on == ConditionOn::CategoryPace;
+                cfg.model.parts.pace = on != ConditionOn::Category;
+                cfg.model.parts.pace_speed = on == ConditionOn::CategoryPaceSpeed;
             }
             None => {}
         }
@@ -564,6 +570,16 @@ mod tests {
         }
         .apply(&mut none);
         assert!(none.condition.is_none() && !none.model.parts.pace);
+        // The pace with the speed: both parts on; the plain pace, only one.
+        let mut speed = minute.clone();
+        Overrides {
+            condition: "category+pace+speed".parse().ok(),
+            ..Default::default()
+        }
+        .apply(&mut speed);
+        assert!(speed.model.parts.pace && speed.model.parts.pace_speed);
+        assert!(!minute.model.parts.pace_speed);
+        assert!("pace+speed".parse::<ConditionOn>().is_err());
         assert_eq!("minute".parse::<Preset>(), Ok(Preset::Minute));
         assert_eq!(
             minute.extras(),

@@ -1026,6 +1026,64 @@ fn the_pace_is_four_means_read_where_a_category_is_asked() {
 }
 
 #[test]
+fn the_pace_can_hold_the_speed_of_motion_that_goes_back_and_forth() {
+    use motion_vrnn::model::SPEED_CENTRE_M_S;
+    let mut four = conditioned("motion", true).model.config().clone();
+    four.parts.pace = true;
+    let mut five = four.clone();
+    five.parts.pace_speed = true;
+    // The synthetic body's std is 2 (means 0): normalised velocities
+    // (1.5, 2), (0, 0), (−1.5, −2) are (3, 4), (0, 0), (−3, −4) units a
+    // frame, speeds 5, 0, 5: a mean speed of 10/3 and a mean velocity of 0.
+    let mut v = vec![0f32; 3 * 58];
+    for (t, (vx, vz)) in [(1.5f32, 2.0f32), (0.0, 0.0), (-1.5, -2.0)]
+        .into_iter()
+        .enumerate()
+    {
+        v[t * 58 + 55] = vx;
+        v[t * 58 + 56] = vz;
+    }
+    let x = Tensor::from_vec(v, (1, 3, 58), &Device::Cpu).unwrap();
+    let per_unit = 30.0 * motion_metrics::METRES_PER_UNIT;
+    let p = flat(&five.pace_of(&x).unwrap());
+    assert_eq!(p[..4], [0.0; 4]);
+    let want = 10.0 / 3.0 * per_unit - SPEED_CENTRE_M_S;
+    assert!((f64::from(p[4]) - want).abs() < 1e-5, "{} vs {want}", p[4]);
+    // Without the speed, the four means alone.
+    assert_eq!(flat(&four.pace_of(&x).unwrap()), [0.0; 4]);
+    assert_eq!(four.pace_columns() + 1, five.pace_columns());
+
+    // The table gains a row for it, the condition a column, and asking for
+    // another speed changes the motion.
+    let m = init_model(&five, 4, &Device::Cpu).unwrap();
+    assert_eq!(table(&m).dims()[0], CATEGORIES.len() + 1 + 5);
+    randomise(&m);
+    let c = m.model.config();
+    let cond = c
+        .paced(Some(&ask(&m, &[Some(1)], 1.0)), Some(&x))
+        .unwrap()
+        .unwrap();
+    assert_eq!(cond.dims(), [1, CATEGORIES.len() + 1 + 5]);
+    let faster = Tensor::new(&[[0f32, 0.0, 0.0, 0.0, p[4] + 1.0]], &Device::Cpu).unwrap();
+    let e = noise(1, 2, 6, 1, 8, &Device::Cpu).unwrap();
+    let sample = |w: &Tensor| flat(&m.model.sample(&e, Some(&x), Some(w)).unwrap());
+    assert_ne!(
+        sample(&c.asking_pace(&cond, &faster).unwrap()),
+        sample(&cond)
+    );
+    // A four-column pace is refused by the five-column model.
+    let short = Tensor::new(&[[0f32; 4]], &Device::Cpu).unwrap();
+    assert!(c
+        .asking_pace(&cond, &short)
+        .and_then(|w| m.model.sample(&e, Some(&x), Some(&w)))
+        .is_err());
+    // The speed needs the pace part.
+    let mut bare = five.clone();
+    bare.parts.pace = false;
+    assert!(init_model(&bare, 4, &Device::Cpu).is_err());
+}
+
+#[test]
 fn asking_pace_weighs_the_pace_as_paced_does() {
     let mut c = conditioned("motion", true).model.config().clone();
     c.parts.pace = true;
