@@ -435,15 +435,16 @@ impl Config {
     /// (m/s less [`SPEED_CENTRE_M_S`]) after it, `[B, pace_columns]`.
     pub fn pace_of(&self, x: &Tensor) -> Result<Tensor> {
         let p = pace(x)?;
-        match (&self.body, self.parts.pace_speed) {
-            (Some(body), true) => {
-                let per_unit =
-                    motion_metrics::Options::default().fps * motion_metrics::METRES_PER_UNIT;
-                let s = root_speed(x, body)?.affine(per_unit, -SPEED_CENTRE_M_S)?;
-                Tensor::cat(&[&p, &s.unsqueeze(1)?], 1)
-            }
-            _ => Ok(p),
+        if !self.parts.pace_speed {
+            return Ok(p);
         }
+        // Never fewer columns than `pace_columns` says.
+        let Some(body) = &self.body else {
+            candle_core::bail!("the pace's speed needs the skeleton's statistics (Config::fit_to)");
+        };
+        let per_unit = motion_metrics::Options::default().fps * motion_metrics::METRES_PER_UNIT;
+        let s = root_speed(x, body)?.affine(per_unit, -SPEED_CENTRE_M_S)?;
+        Tensor::cat(&[&p, &s.unsqueeze(1)?], 1)
     }
 
     /// `cond` with the pace of `x: [B, T, input]` ([`Parts::pace`]) as its
