@@ -46,8 +46,8 @@ pub(crate) fn k_blocks(k: usize) -> impl Iterator<Item = (usize, usize)> {
 
 /// `c (+)= a · b` with `a: m×k`, `b: k×n`, `c: m×n`; single-threaded; the
 /// same bits on every CPU that runs `gemm`'s same kernel ([`K_BLOCK`]).
-/// Where the CPU has AVX-512, a block `gemm` would sum on its general route
-/// runs through the 16-lane kernel instead ([`block_fma`]; the weights'
+/// Where the CPU has AVX2 and FMA, a block `gemm` would sum on its general
+/// route runs through [`fma_strided`] instead ([`block_fma`]; the weights'
 /// gradients, whose transposed left side it reads where it lies): the same
 /// bits.
 #[allow(clippy::too_many_arguments)]
@@ -136,12 +136,13 @@ fn mm_with(
     }
 }
 
-/// One block of [`mm`] (`k ≤ K_BLOCK`) through [`fma_avx512`],
-/// reading `a` and `b` where they lie: where the CPU has AVX-512F, `gemm`
-/// would take its general route (the FMA chain the kernel reproduces), and
-/// the rows of `b` and `c` are contiguous; false, with `c` untouched,
-/// elsewhere. (With AVX2 alone `gemm` stays: copying a transposed `a` into
-/// rows for [`fma_avx2`] cost more than it saved.)
+/// One block of [`mm`] (`k ≤ K_BLOCK`) through [`fma_strided`] (16 lanes
+/// where the CPU has AVX-512F, else 8), reading `a` and `b` where they lie:
+/// where the CPU has AVX2 and FMA, `gemm` would take its general route (the
+/// FMA chain the kernel reproduces), and the rows of `b` and `c` are
+/// contiguous; false, with `c` untouched, elsewhere. (An earlier 8-lane
+/// kernel read `a` in rows only, and copying a transposed `a` into rows for
+/// it cost more than `gemm`'s packing; the kernel now reads it strided.)
 #[allow(clippy::too_many_arguments)]
 fn block_fma(
     (m, n, k): (usize, usize, usize),
@@ -153,7 +154,7 @@ fn block_fma(
     b: &[f32],
     bv: V,
 ) -> bool {
-    if !(has_avx512() && cv.cs == 1 && bv.cs == 1 && general_route((m, n, k), av, bv)) {
+    if !(has_avx2_fma() && cv.cs == 1 && bv.cs == 1 && general_route((m, n, k), av, bv)) {
         return false;
     }
     let start = if acc { Start::Dst } else { Start::Zero };
@@ -161,7 +162,7 @@ fn block_fma(
     // every element the views reach.
     #[cfg(target_arch = "x86_64")]
     unsafe {
-        fma_avx512(
+        fma_strided(
             (m, n, k),
             c.as_mut_ptr().add(cv.off),
             cv.rs,
@@ -1055,8 +1056,9 @@ mod tests {
 
     /// `mm` gives `gemm`'s bits on the weights' gradients (a transposed
     /// left side, thousands of rows summed in blocks of [`K_BLOCK`]), from
-    /// zero and accumulated, into strided rows (on a CPU without AVX-512
-    /// both sides are `gemm`'s).
+    /// zero and accumulated, into strided rows; so does each width of the
+    /// kernel alone on one block (the 16-lane one where the CPU has
+    /// AVX-512; `mm` runs the widest the CPU has).
     #[test]
     fn weight_gradients_give_gemms_bits() {
         // (out, inp, rows, offset of b's columns, b's row stride): dense
@@ -1069,7 +1071,30 @@ mod tests {
             (8, 32, 4096, 0, 32),
             (16, 32, 4096, 8, 40),
             (3, 5, 7, 2, 9),
+            (128, 40, 512, 0, 40),
+            (16, 32, 512, 8, 40),
         ];
+        #[cfg(target_arch = "x86_64")]
+        let kernels = {
+            type Kernel = unsafe fn(
+                (usize, usize, usize),
+                *mut f32,
+                usize,
+                *const f32,
+                (usize, usize),
+                *const f32,
+                usize,
+                Start,
+            );
+            let mut k: Vec<(&str, Kernel)> = Vec::new();
+            if has_avx2_fma() {
+                k.push(("avx2", fma_avx2));
+            }
+            if has_avx512() {
+                k.push(("avx512", fma_avx512));
+            }
+            k
+        };
         for (out, inp, rows, off, b_rs) in shapes {
             let g: Vec<f32> = (0..rows * out).map(|i| value(i, 1)).collect();
             let x: Vec<f32> = (0..rows * b_rs).map(|i| value(i, 2)).collect();
@@ -1098,6 +1123,37 @@ mod tests {
                         w.to_bits(),
                         "{out}x{inp}x{rows} (acc {acc}) element {i}: {g} against {w}"
                     );
+                }
+                // Each width alone, where one block holds every row and
+                // `gemm` takes its general route.
+                #[cfg(target_arch = "x86_64")]
+                if rows <= K_BLOCK && general_route((out, inp, rows), tr(0, out), rm(off, b_rs)) {
+                    for (name, kernel) in &kernels {
+                        let mut c = c0.clone();
+                        let start = if acc { Start::Dst } else { Start::Zero };
+                        // SAFETY: the CPU has the kernel's features; `g`
+                        // holds `rows × out`, `x` `rows` rows of `b_rs` from
+                        // `off`, `c` `out` rows of `inp + 1`.
+                        unsafe {
+                            kernel(
+                                (out, inp, rows),
+                                c.as_mut_ptr(),
+                                inp + 1,
+                                g.as_ptr(),
+                                (1, out),
+                                x.as_ptr().add(off),
+                                b_rs,
+                                start,
+                            )
+                        };
+                        for (i, (g, w)) in c.iter().zip(&want).enumerate() {
+                            assert_eq!(
+                                g.to_bits(),
+                                w.to_bits(),
+                                "{name} {out}x{inp}x{rows} (acc {acc}) element {i}: {g} against {w}"
+                            );
+                        }
+                    }
                 }
             }
         }
