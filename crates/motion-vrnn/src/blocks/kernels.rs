@@ -818,6 +818,35 @@ mod tests {
         (x as f32 / 1_000_003.0 - 0.5) * 3.0
     }
 
+    /// A width of the kernel, as [`fma_strided`] calls it.
+    #[cfg(target_arch = "x86_64")]
+    type Kernel = unsafe fn(
+        (usize, usize, usize),
+        *mut f32,
+        usize,
+        *const f32,
+        (usize, usize),
+        *const f32,
+        usize,
+        Start,
+    );
+
+    /// Every width of the kernel this CPU runs, named (none without AVX2
+    /// and FMA; the 16-lane one only with AVX-512F).
+    #[cfg(target_arch = "x86_64")]
+    fn widths() -> Vec<(&'static str, Kernel)> {
+        let mut k: Vec<(&str, Kernel)> = Vec::new();
+        if has_avx2_fma() {
+            k.push(("avx2", fma_avx2));
+        }
+        if has_avx512() {
+            k.push(("avx512", fma_avx512));
+        } else {
+            eprintln!("AVX-512 part skipped: this CPU has no AVX-512F");
+        }
+        k
+    }
+
     /// The inner dimension is cut as `gemm` cuts it with 512-long blocks:
     /// equal pieces of at most 512, in order, covering it once.
     #[test]
@@ -978,22 +1007,7 @@ mod tests {
             eprintln!("skipped: this CPU has no AVX2 and FMA");
             return;
         }
-        type Kernel = unsafe fn(
-            (usize, usize, usize),
-            *mut f32,
-            usize,
-            *const f32,
-            (usize, usize),
-            *const f32,
-            usize,
-            Start,
-        );
-        let mut kernels: Vec<(&str, Kernel)> = vec![("avx2", fma_avx2)];
-        if has_avx512() {
-            kernels.push(("avx512", fma_avx512));
-        } else {
-            eprintln!("AVX-512 part skipped: this CPU has no AVX-512F");
-        }
+        let kernels = widths();
         let (k, m) = (37, 15);
         // From 2 columns: `gemm` sums a single one another way (`general_route`).
         for n in (2..=40).chain([47, 48, 58, 60, 63, 64, 128]) {
@@ -1075,26 +1089,7 @@ mod tests {
             (16, 32, 512, 8, 40),
         ];
         #[cfg(target_arch = "x86_64")]
-        let kernels = {
-            type Kernel = unsafe fn(
-                (usize, usize, usize),
-                *mut f32,
-                usize,
-                *const f32,
-                (usize, usize),
-                *const f32,
-                usize,
-                Start,
-            );
-            let mut k: Vec<(&str, Kernel)> = Vec::new();
-            if has_avx2_fma() {
-                k.push(("avx2", fma_avx2));
-            }
-            if has_avx512() {
-                k.push(("avx512", fma_avx512));
-            }
-            k
-        };
+        let kernels = widths();
         for (out, inp, rows, off, b_rs) in shapes {
             let g: Vec<f32> = (0..rows * out).map(|i| value(i, 1)).collect();
             let x: Vec<f32> = (0..rows * b_rs).map(|i| value(i, 2)).collect();
