@@ -246,12 +246,11 @@ pub const SPEED_CENTRE_M_S: f64 = 1.0;
 /// back and forth has it.
 pub fn root_speed(x: &Tensor, body: &Body) -> Result<Tensor> {
     use mocap_ingest::features::{VEL_X, VEL_Z};
-    let unit = |f: usize| {
-        x.narrow(2, f, 1)?
-            .affine(f64::from(body.std[f]), f64::from(body.mean[f]))?
-            .sqr()
-    };
-    (unit(VEL_X)? + unit(VEL_Z)?)?.sqrt()?.mean(1)?.squeeze(1)
+    let squared = |f: usize| feet::raw_col(x, f, &body.stats())?.sqr();
+    (squared(VEL_X)? + squared(VEL_Z)?)?
+        .sqrt()?
+        .mean(1)?
+        .squeeze(1)
 }
 
 impl Parts {
