@@ -44,6 +44,10 @@ pub struct Plain {
     /// Stride, m (`motion_metrics::stride`; 0 in reports written before it).
     #[serde(default)]
     pub stride_m: f64,
+    /// Creep of planted toes, m/s (`MotionStats::creep_m_s`; 0 in reports
+    /// written before it).
+    #[serde(default)]
+    pub creep_m_s: f64,
 }
 
 /// The model a results-page section is about: its heading and what it is.
@@ -76,6 +80,7 @@ pub fn plain(poses: &[Vec<Pose>]) -> Option<Plain> {
         jerk_m_s3: m.jerk_m_s3,
         apd_m: (poses.len() > 1).then_some(m.apd_m),
         stride_m: m.stride_m,
+        creep_m_s: m.creep_m_s,
     })
 }
 
@@ -498,10 +503,11 @@ pub fn markdown(a: &AskedSet) -> String {
          same contexts and noise with no category asked. Recognition: the share the classifier puts in the \
          category asked for, against its share on the real {split} windows of it. Speed, contact and stride: real \
          windows of the category (all splits) → asked → unasked, with the ratio of draws of half the real \
-         windows to all of them in brackets (stride: a diagnostic, not a goal). Goals (categories with at least {} training windows): \
+         windows to all of them in brackets (stride: a diagnostic, not a goal). Creep: how fast the planted toes \
+         slide (contact, not skating), real → asked, a diagnostic. Goals (categories with at least {} training windows): \
          recognised ≥ 0.9 × real, speed and contact 0.75–1.25 × real.\n\n\
-         | category | train / {split} windows | recognised: real {split} → asked (unasked) | hips speed m/s | contact | stride m | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
-         |---|---|---|---|---|---|---|---|---|---|\n",
+         | category | train / {split} windows | recognised: real {split} → asked (unasked) | hips speed m/s | contact | stride m | creep m/s | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
         a.guidance,
         a.per_category,
         MIN_TRAIN_WINDOWS,
@@ -515,7 +521,7 @@ pub fn markdown(a: &AskedSet) -> String {
             (true, m) => m.join(", "),
         };
         s += &format!(
-            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
+            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.3} → {:.3} | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
             c.category,
             c.train_windows,
             c.split_windows,
@@ -534,6 +540,8 @@ pub fn markdown(a: &AskedSet) -> String {
             c.generated.stride_m,
             c.unasked.stride_m,
             bracket(c.stride_spread),
+            c.real.creep_m_s,
+            c.generated.creep_m_s,
             c.real.jerk_m_s3,
             c.generated.jerk_m_s3,
             c.real.apd_m.map_or("–".into(), |v| format!("{v:.2}")),
@@ -546,11 +554,12 @@ pub fn markdown(a: &AskedSet) -> String {
     let (g, r) = (&a.generated, &a.real);
     s += &format!(
         "\nEvery motion asked for, against every real window: jerk {:.2}×, bone cv {:.2} %, skating in contact {:.2}×, \
-         hips height {:.2}×, hips speed {:.2}×; Fréchet (window summaries) {:.1} (train windows {:.1}); \
+         creep of planted toes {:.2}×, hips height {:.2}×, hips speed {:.2}×; Fréchet (window summaries) {:.1} (train windows {:.1}); \
          feature Fréchet {}; diversity {}; multimodality {}.\n",
         g.jerk_m_s3 / r.jerk_m_s3,
         100.0 * g.bone_cv,
         g.skate_in_contact / r.skate_in_contact,
+        g.creep_m_s / r.creep_m_s,
         g.hip_height_m / r.hip_height_m,
         g.root_speed_m_s / r.root_speed_m_s,
         a.frechet_summaries.0,
@@ -704,6 +713,7 @@ mod tests {
             jerk_m_s3: 100.0,
             apd_m: Some(1.0),
             stride_m: 0.3,
+            creep_m_s: 0.05,
         }
     }
 
@@ -776,6 +786,11 @@ mod tests {
         // Stride: real → asked (unasked).
         assert!(
             row.contains("| 0.30 → **0.18** (0.30) [0.80–1.20] |"),
+            "{row}"
+        );
+        // Creep of planted toes: real → asked, then jerk.
+        assert!(
+            row.contains("[0.80–1.20] | 0.050 → 0.050 | 100 → 100 |"),
             "{row}"
         );
         assert!(row.ends_with("| speed |"), "{row}");

@@ -240,7 +240,7 @@ pub fn markdown(r: &EvalReport) -> String {
     );
     s += "| measure | real | reconstructed | generated | reconstructed / real | generated / real |\n|---|---|---|---|---|---|\n";
     type Row = (&'static str, fn(&MotionStats) -> f64, usize);
-    let rows: [Row; 14] = [
+    let rows: [Row; 15] = [
         ("APD, m", |m| m.apd_m, 3),
         ("mean jerk, m/s³", |m| m.jerk_m_s3, 1),
         ("power above 5 Hz", |m| m.high_freq_share, 4),
@@ -255,6 +255,11 @@ pub fn markdown(r: &EvalReport) -> String {
             "skating among contact foot-frames",
             |m| m.skate_in_contact,
             4,
+        ),
+        (
+            "creep of planted toes (contact, not skating), m/s",
+            |m| m.creep_m_s,
+            3,
         ),
         ("turning rate, °/s", |m| m.turning_deg_s, 1),
         (

@@ -61,6 +61,11 @@ pub struct MotionStats {
     /// Among foot-frames in contact, the share that skate.
     #[serde(default)]
     pub skate_in_contact: f64,
+    /// Creep: among foot-frames in contact that do not skate, the mean
+    /// horizontal toe speed (m/s): planted feet that slide too slowly to
+    /// count as skating (0 in reports written before it).
+    #[serde(default)]
+    pub creep_m_s: f64,
     /// Drift: mean hips height above the floor, over whole motions (m).
     #[serde(default)]
     pub hip_height_m: f64,
@@ -278,26 +283,53 @@ pub fn bone_cv(m: &[Pose]) -> f64 {
     sum / bones as f64
 }
 
-/// `(skating, contact)` foot-frame counts and the number of foot-frames. A
-/// foot (toe joint) is in contact at frame `t ≥ 1` when its height is below
-/// `contact_m`, and skates when its horizontal speed from `t − 1` to `t`
-/// exceeds `skate_m_s`.
-pub fn foot_skating(m: &[Pose], o: &Options) -> (usize, usize, usize) {
-    let (mut skate, mut contact, mut all) = (0, 0, 0);
+/// Foot-frames of a motion (both toe joints, frames `t ≥ 1`), counted by
+/// [`foot_skating`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FootFrames {
+    /// In contact and skating.
+    pub skate: usize,
+    /// In contact.
+    pub contact: usize,
+    /// All foot-frames.
+    pub all: usize,
+    /// Sum of the horizontal speeds (m/s) of the foot-frames in contact
+    /// that do not skate: how fast planted feet creep.
+    pub creep_sum_m_s: f64,
+}
+
+impl std::ops::AddAssign for FootFrames {
+    fn add_assign(&mut self, o: Self) {
+        self.skate += o.skate;
+        self.contact += o.contact;
+        self.all += o.all;
+        self.creep_sum_m_s += o.creep_sum_m_s;
+    }
+}
+
+/// A motion's foot-frames. A foot (toe joint) is in contact at frame
+/// `t ≥ 1` when its height is below `contact_m`, and skates when its
+/// horizontal speed from `t − 1` to `t` exceeds `skate_m_s`; a foot in
+/// contact that does not skate adds its speed to the creep.
+pub fn foot_skating(m: &[Pose], o: &Options) -> FootFrames {
+    let mut n = FootFrames::default();
     for t in 1..m.len() {
         for &f in &FEET {
-            all += 1;
+            n.all += 1;
             if m[t][f][1] * METRES_PER_UNIT >= o.contact_m {
                 continue;
             }
-            contact += 1;
+            n.contact += 1;
             let (dx, dz) = (m[t][f][0] - m[t - 1][f][0], m[t][f][2] - m[t - 1][f][2]);
-            if (dx * dx + dz * dz).sqrt() * METRES_PER_UNIT * o.fps > o.skate_m_s {
-                skate += 1;
+            let speed = (dx * dx + dz * dz).sqrt() * METRES_PER_UNIT * o.fps;
+            if speed > o.skate_m_s {
+                n.skate += 1;
+            } else {
+                n.creep_sum_m_s += speed;
             }
         }
     }
-    (skate, contact, all)
+    n
 }
 
 /// Every measure over a set of motions (per-motion values averaged; skating
@@ -310,14 +342,14 @@ pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
         let each: Vec<f64> = motions.par_iter().map(|m| f(m)).collect();
         each.iter().sum::<f64>() / n
     };
-    let (mut s, mut c, mut a) = (0, 0, 0);
-    let skating: Vec<_> = motions.par_iter().map(|m| foot_skating(m, o)).collect();
-    for (s1, c1, a1) in skating {
-        s += s1;
-        c += c1;
-        a += a1;
+    // Summed in the motions' order: the creep's sum is a float.
+    let mut feet = FootFrames::default();
+    let each: Vec<_> = motions.par_iter().map(|m| foot_skating(m, o)).collect();
+    for n in each {
+        feet += n;
     }
-    let a = a.max(1) as f64;
+    let (s, c) = (feet.skate, feet.contact);
+    let a = feet.all.max(1) as f64;
     MotionStats {
         motions: motions.len(),
         apd_m: apd(motions),
@@ -327,6 +359,7 @@ pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
         skate_share: s as f64 / a,
         contact_share: c as f64 / a,
         skate_in_contact: s as f64 / c.max(1) as f64,
+        creep_m_s: feet.creep_sum_m_s / (c - s).max(1) as f64,
         hip_height_m: mean(&|m| hip_height(m, 0)),
         hip_height_end_m: mean(&|m| hip_height(m, m.len().saturating_sub(TAIL))),
         root_speed_m_s: mean(&|m| root_speed(m, 0, o.fps)),
@@ -885,9 +918,36 @@ mod tests {
                 p
             })
             .collect();
-        assert_eq!(foot_skating(&m, &o), (4, 8, 8));
+        let n = foot_skating(&m, &o);
+        assert_eq!((n.skate, n.contact, n.all, n.creep_sum_m_s), (4, 8, 8, 0.0));
         let s = motion_stats(&[m], &o);
-        assert_eq!((s.skate_share, s.contact_share), (0.5, 1.0));
+        assert_eq!(
+            (s.skate_share, s.contact_share, s.creep_m_s),
+            (0.5, 1.0, 0.0)
+        );
+    }
+
+    #[test]
+    fn planted_toes_that_creep() {
+        let o = Options::default();
+        // Both toes on the floor, the left one creeping 0.1 unit a frame
+        // (0.1·0.0564·30 = 0.1692 m/s, under the skating speed), the right
+        // one still, then the right toe lifted 10 units for the last frame.
+        let m: Vec<Pose> = (0..5)
+            .map(|t| {
+                let mut p: Pose = [[0.0, 10.0, 0.0]; NUM_JOINTS];
+                p[FEET[0]] = [0.1 * t as f64, 0.0, 0.0];
+                p[FEET[1]] = [0.0, if t == 4 { 10.0 } else { 0.0 }, 0.0];
+                p
+            })
+            .collect();
+        let n = foot_skating(&m, &o);
+        // 4 creeping left foot-frames, 3 still right ones, 1 right in the air.
+        assert_eq!((n.skate, n.contact, n.all), (0, 7, 8));
+        assert!((n.creep_sum_m_s - 4.0 * 0.1692).abs() < 1e-9);
+        let s = motion_stats(&[m], &o);
+        assert!((s.creep_m_s - 4.0 * 0.1692 / 7.0).abs() < 1e-9);
+        assert_eq!(s.skate_in_contact, 0.0);
     }
 
     #[test]
