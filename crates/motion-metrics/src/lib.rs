@@ -905,19 +905,24 @@ mod tests {
         assert!((bone_cv(&m) - 0.5 / 18.0).abs() < 1e-12);
     }
 
+    /// Five frames of a figure 10 units up but for its toes, placed by
+    /// `at(t)` (left, right).
+    fn toes(at: impl Fn(f64) -> ([f64; 3], [f64; 3])) -> Vec<Pose> {
+        (0..5)
+            .map(|t| {
+                let mut p: Pose = [[0.0, 10.0, 0.0]; NUM_JOINTS];
+                (p[FEET[0]], p[FEET[1]]) = at(t as f64);
+                p
+            })
+            .collect()
+    }
+
     #[test]
     fn foot_skating_counts() {
         let o = Options::default();
         // Toes on the floor; the left toe slides 1 unit per frame
         // (1·0.0564·30 = 1.69 m/s), the right one stays.
-        let m: Vec<Pose> = (0..5)
-            .map(|t| {
-                let mut p: Pose = [[0.0, 10.0, 0.0]; NUM_JOINTS];
-                p[FEET[0]] = [t as f64, 0.0, 0.0];
-                p[FEET[1]] = [0.0, 0.0, 0.0];
-                p
-            })
-            .collect();
+        let m = toes(|t| ([t, 0.0, 0.0], [0.0; 3]));
         let n = foot_skating(&m, &o);
         assert_eq!((n.skate, n.contact, n.all, n.creep_sum_m_s), (4, 8, 8, 0.0));
         let s = motion_stats(&[m], &o);
@@ -933,14 +938,12 @@ mod tests {
         // Both toes on the floor, the left one creeping 0.1 unit a frame
         // (0.1·0.0564·30 = 0.1692 m/s, under the skating speed), the right
         // one still, then the right toe lifted 10 units for the last frame.
-        let m: Vec<Pose> = (0..5)
-            .map(|t| {
-                let mut p: Pose = [[0.0, 10.0, 0.0]; NUM_JOINTS];
-                p[FEET[0]] = [0.1 * t as f64, 0.0, 0.0];
-                p[FEET[1]] = [0.0, if t == 4 { 10.0 } else { 0.0 }, 0.0];
-                p
-            })
-            .collect();
+        let m = toes(|t| {
+            (
+                [0.1 * t, 0.0, 0.0],
+                [0.0, if t == 4.0 { 10.0 } else { 0.0 }, 0.0],
+            )
+        });
         let n = foot_skating(&m, &o);
         // 4 creeping left foot-frames, 3 still right ones, 1 right in the air.
         assert_eq!((n.skate, n.contact, n.all), (0, 7, 8));
