@@ -496,3 +496,39 @@ fn contact_loss_by_hand() {
         }
     }
 }
+
+/// The gradient store of the vendored candle-core (`vendor/README.md`)
+/// stores a node's first gradient as it is instead of adding it into zeros:
+/// hand-computed sums over a leaf reached several ways (twice through one
+/// `add`, through a broadcast and through a transpose), two leaves given the
+/// same gradient tensor, and every stored gradient contiguous.
+#[test]
+fn a_patched_gradient_store_sums_the_same() {
+    let dev = &Device::Cpu;
+    let x = Var::from_vec(vec![1f32, 2., 3., 4., 5., 6.], (2, 3), dev).unwrap();
+    let y = Var::from_vec(vec![0.5f32, -1., 2.], 3, dev).unwrap();
+    let w = Tensor::from_vec(vec![1f32, -2., 3., 0.5, 0., -1.], (2, 3), dev).unwrap();
+    let t = Tensor::from_vec(vec![10f32, 20., 30., 40., 50., 60.], (3, 2), dev).unwrap();
+    let a = ((x.as_tensor() + x.as_tensor()).unwrap() * &w).unwrap();
+    let b = x.as_tensor().broadcast_add(y.as_tensor()).unwrap();
+    let c = (x.as_tensor().t().unwrap() * &t).unwrap();
+    let loss = (a.sum_all().unwrap() + b.sum_all().unwrap() + c.sum_all().unwrap()).unwrap();
+    let grads = loss.backward().unwrap();
+    let gx = grads.get(x.as_tensor()).unwrap();
+    let gy = grads.get(y.as_tensor()).unwrap();
+    // d/dx = 2w + 1 + tᵀ; d/dy = the two rows' ones summed.
+    let want_x = [13f32, 27., 57., 22., 41., 59.];
+    assert_eq!(values(gx), want_x);
+    assert_eq!(values(gy), [2f32, 2., 2.]);
+    assert!(gx.is_contiguous() && gy.is_contiguous());
+
+    let p = Var::from_vec(vec![1f32, 2.], 2, dev).unwrap();
+    let q = Var::from_vec(vec![3f32, 4.], 2, dev).unwrap();
+    let loss = ((p.as_tensor() + q.as_tensor()).unwrap() * 3.0)
+        .unwrap()
+        .sum_all()
+        .unwrap();
+    let grads = loss.backward().unwrap();
+    assert_eq!(values(grads.get(p.as_tensor()).unwrap()), [3f32, 3.]);
+    assert_eq!(values(grads.get(q.as_tensor()).unwrap()), [3f32, 3.]);
+}
