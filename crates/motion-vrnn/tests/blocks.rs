@@ -241,7 +241,10 @@ fn latent_lstm_block() {
 fn latent_lstm_reads_blocks_and_rows_to_the_bit() {
     // The scan reading `pre` in two blocks and adding the rows itself gives
     // the bits of `cat`, then `add_rows`, then the scan: output and every
-    // gradient (the default model's training depends on it).
+    // gradient (the default model's training depends on it). A zero may
+    // differ in its sign: candle's gradient store (vendor/README.md) keeps a
+    // first gradient's −0 where adding it into zeros made it +0, and no
+    // update of Adam can tell them apart.
     let dims = ScanDims {
         hidden: 6,
         latent: 2,
@@ -275,8 +278,10 @@ fn latent_lstm_reads_blocks_and_rows_to_the_bit() {
         };
         let (inside, outside) = (run(true), run(false));
         for (k, (a, o)) in inside.iter().zip(&outside).enumerate() {
-            let same =
-                a.len() == o.len() && a.iter().zip(o).all(|(x, y)| x.to_bits() == y.to_bits());
+            let same = a.len() == o.len()
+                && a.iter()
+                    .zip(o)
+                    .all(|(x, y)| x.to_bits() == y.to_bits() || (*x == 0.0 && *y == 0.0));
             assert!(same, "rows {rb}: part {k} differs");
         }
     }
