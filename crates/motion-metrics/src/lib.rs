@@ -298,6 +298,19 @@ pub struct FootFrames {
     pub creep_sum_m_s: f64,
 }
 
+impl FootFrames {
+    /// Share of the foot-frames in contact that skate.
+    pub fn skate_in_contact(&self) -> f64 {
+        self.skate as f64 / self.contact.max(1) as f64
+    }
+
+    /// Mean horizontal speed (m/s) of the foot-frames in contact that do
+    /// not skate: the creep of planted toes.
+    pub fn creep_m_s(&self) -> f64 {
+        self.creep_sum_m_s / (self.contact - self.skate).max(1) as f64
+    }
+}
+
 impl std::ops::AddAssign for FootFrames {
     fn add_assign(&mut self, o: Self) {
         self.skate += o.skate;
@@ -358,8 +371,8 @@ pub fn motion_stats(motions: &[Vec<Pose>], o: &Options) -> MotionStats {
         bone_cv: mean(&bone_cv),
         skate_share: s as f64 / a,
         contact_share: c as f64 / a,
-        skate_in_contact: s as f64 / c.max(1) as f64,
-        creep_m_s: feet.creep_sum_m_s / (c - s).max(1) as f64,
+        skate_in_contact: feet.skate_in_contact(),
+        creep_m_s: feet.creep_m_s(),
         hip_height_m: mean(&|m| hip_height(m, 0)),
         hip_height_end_m: mean(&|m| hip_height(m, m.len().saturating_sub(TAIL))),
         root_speed_m_s: mean(&|m| root_speed(m, 0, o.fps)),
