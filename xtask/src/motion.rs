@@ -76,6 +76,9 @@ pub struct SampleArgs {
     /// Output directory (default: RUN/samples).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Pin each planted toe of the generated motions in place, the legs bent by IK to reach it.
+    #[arg(long)]
+    pub pin_feet: bool,
 }
 
 /// `cargo xtask eval` options.
@@ -122,6 +125,9 @@ pub struct ContinueArgs {
     /// Continuations to write, from seeds --seed, --seed + 1, …
     #[arg(long, default_value_t = 1)]
     variations: usize,
+    /// Pin each planted toe of the generated frames in place, the legs bent by IK to reach it.
+    #[arg(long)]
+    pin_feet: bool,
 }
 
 /// `cargo xtask screenshot` options.
@@ -185,6 +191,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         frames: a.frames,
         reconstruct: a.reconstruct,
         sheet_columns: 5,
+        pin_feet: a.pin_feet,
     };
     let w = write_samples(&a.run.spec(), &o, &out)?;
     w.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
@@ -203,31 +210,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
             a.run.guidance
         );
     }
-    println!("wrote {}:", out.display());
-    println!(
-        "  samples.parquet, samples.json   motions (motion, frame, joint, x, y, z; CMU units)"
-    );
-    if w.reconstructed > 0 {
-        println!(
-            "  reconstructions.parquet/.json   {} real {} windows and their reconstructions",
-            w.reconstructed, a.run.split
-        );
-    }
-    println!("  bvh/ID.bvh                      every motion as BVH (CMU Motionbuilder skeleton, 30 fps)");
-    println!(
-        "  contact_sheet.png               stick figures, {} columns over the whole motion (labelled in seconds)",
-        o.sheet_columns
-    );
-    println!(
-        "  anim/*.png                      animated PNG per motion (and real vs reconstruction)"
-    );
-    println!("  viewer.html                     open in a browser: 3-D, orbit/pan/zoom, play/pause, speed, frame slider");
-    if !w.category_sheet.is_empty() {
-        println!(
-            "  category_sheet.png              one row per category asked for: {}",
-            w.category_sheet.join(", ")
-        );
-    }
+    print!("{}", w.listing(&out, &a.run.split, &o));
     print!("{}", round_trip_table(&w.round_trips));
     Ok(())
 }
@@ -359,6 +342,7 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
         seed: a.run.seed,
         variations: a.variations,
         context: a.run.context,
+        pin_feet: a.pin_feet,
     };
     o.validate()?;
     let (_, _, clip) = mocap_ingest::clip_of_file(&a.input, a.asf.clone(), &Default::default())
@@ -392,6 +376,7 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
             path.display(), c.seed, c.clip_frames, c.motion.poses.len() - c.clip_frames,
             c.motion.poses.len() as f64 / 30.0, c.seam.jump, c.seam.jump / c.seam.clip_mean.max(1e-9), c.seam.clip_last, c.seam.next_second, check.poses.len()
         );
+        c.pinned.iter().for_each(|p| println!("  {p}"));
     }
     Ok(())
 }

@@ -535,6 +535,29 @@ fn continue_extends_real_clips_and_its_own_bvh_without_a_jump() {
     let o = cont(&mb, &outs.join("w.bvh"), &["--seconds", "1", "--seed", "5"]);
     assert!(o.status.success());
     assert_eq!(std::fs::read(outs.join("w.bvh")).unwrap(), v[0]);
+    // Feet pinned: the clip's frames as they were (up to the BVH's one
+    // skeleton, which the legs bent by IK move a little), the same length.
+    let o = cont(
+        &mb,
+        &outs.join("p.bvh"),
+        &["--seconds", "1", "--seed", "5", "--pin-feet"],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("feet pinned:"), "{stdout}");
+    let read = |f: &str| motion_render::bvh::read_motion(&outs.join(f), f).unwrap();
+    let (p, w) = (read("p.bvh"), read("w.bvh"));
+    assert_eq!(p.poses.len(), w.poses.len());
+    let n = mocap_ingest::clip_of_file(&mb, None, &Default::default())
+        .unwrap()
+        .2
+        .features
+        .len();
+    let worst = (0..n)
+        .flat_map(|f| (0..19).map(move |j| (f, j)))
+        .map(|(f, j)| dist(&p.poses[f][j], &w.poses[f][j]))
+        .fold(0.0, f64::max);
+    assert!(worst < 0.25, "pinning moved the clip's frames by {worst}");
     // Clear errors.
     let err = |o: std::process::Output| {
         assert!(!o.status.success());

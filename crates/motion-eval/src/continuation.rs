@@ -3,6 +3,7 @@
 //! one motion continuous at the seam (`cargo xtask continue`).
 
 use crate::run::{Asking, Run, OWN};
+use crate::samples::{pin_generated, FeetPinned};
 use crate::EvalError;
 use mocap_ingest::features::{to_global, FeatureVec};
 use mocap_ingest::Pose;
@@ -27,6 +28,9 @@ pub struct ContinueOptions {
     pub variations: usize,
     /// Last frames of the clip the model reads (all of it when shorter).
     pub context: usize,
+    /// Pin the planted toes of the generated frames in place
+    /// ([`crate::samples::pin_generated`]; the clip's are left as they are).
+    pub pin_feet: bool,
 }
 
 impl Default for ContinueOptions {
@@ -36,6 +40,7 @@ impl Default for ContinueOptions {
             seed: 0,
             variations: 1,
             context: CONTEXT,
+            pin_feet: false,
         }
     }
 }
@@ -85,6 +90,8 @@ pub struct Continued {
     pub seed: u64,
     /// The seam, measured.
     pub seam: Seam,
+    /// With [`ContinueOptions::pin_feet`]: what pinning the feet did.
+    pub pinned: Option<FeetPinned>,
 }
 
 /// Mean joint displacement between two poses.
@@ -180,13 +187,17 @@ pub fn continue_clip(
                 continue_windows(&run.model.model, &window, &[0], &rollout, &run.device)?.remove(0);
             let mut frames = clip.to_vec();
             frames.extend(denormalise(&x[window.features..], stats));
-            let poses = to_global(&frames);
+            let mut motion = Motion {
+                id: format!("continued_{seed}"),
+                poses: to_global(&frames),
+            };
+            let pinned = o
+                .pin_feet
+                .then(|| pin_generated(std::slice::from_mut(&mut motion), clip.len()));
             Ok(Continued {
-                seam: seam(&poses, clip.len()),
-                motion: Motion {
-                    id: format!("continued_{seed}"),
-                    poses,
-                },
+                seam: seam(&motion.poses, clip.len()),
+                pinned,
+                motion,
                 clip_frames: clip.len(),
                 seed,
             })

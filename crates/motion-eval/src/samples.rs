@@ -4,11 +4,13 @@
 
 use crate::run::{Run, RunSpec};
 use crate::{create_dir, EvalError};
+use motion_metrics::{foot_skating, FootFrames, Options};
 use motion_render::bvh::RoundTrip;
+use motion_render::feet::{pin_feet, Pinned};
 use motion_render::figure::{animation, contact_sheet, SHEET_MOTIONS_PER_ROW};
 use motion_render::io::write_motions;
 use motion_render::viewer::{write_viewer, MotionSet};
-use motion_render::Motion;
+use motion_render::{Motion, METRES_PER_UNIT};
 use motion_vrnn::generate::Ask;
 use motion_vrnn::MotionModel;
 use std::path::Path;
@@ -24,6 +26,63 @@ pub struct SampleOptions {
     pub reconstruct: usize,
     /// Columns of the contact sheet, spread over the whole motion.
     pub sheet_columns: usize,
+    /// Pin the generated motions' planted toes in place ([`pin_generated`]).
+    pub pin_feet: bool,
+}
+
+/// What pinning the planted toes of generated motions did
+/// ([`motion_render::feet::pin_feet`]), measured as `docs/metrics.md`
+/// measures feet, before and after.
+#[derive(Clone, Copy, Debug)]
+pub struct FeetPinned {
+    /// Foot-frames held, out of reach, the largest shift.
+    pub pinned: Pinned,
+    /// The creep of planted toes (m/s), before and after.
+    pub creep_m_s: (f64, f64),
+    /// The share of foot-frames in contact that skate, before and after.
+    pub skate_in_contact: (f64, f64),
+}
+
+impl std::fmt::Display for FeetPinned {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "feet pinned: {} planted foot-frames held ({} out of the leg's reach), largest shift {:.3} m; creep of planted toes {:.3} -> {:.3} m/s, skating in contact {:.3} -> {:.3}",
+            self.pinned.planted,
+            self.pinned.out_of_reach,
+            self.pinned.max_shift * METRES_PER_UNIT,
+            self.creep_m_s.0,
+            self.creep_m_s.1,
+            self.skate_in_contact.0,
+            self.skate_in_contact.1
+        )
+    }
+}
+
+/// Pins the planted toes of `motions` from frame `from` on (the frames
+/// before it, a user's clip, are left as they are) and measures the feet of
+/// those frames before and after.
+pub fn pin_generated(motions: &mut [Motion], from: usize) -> FeetPinned {
+    let feet = |motions: &[Motion]| {
+        let mut n = FootFrames::default();
+        for m in motions {
+            n += foot_skating(m.poses.get(from..).unwrap_or(&[]), &Options::default());
+        }
+        n
+    };
+    let before = feet(motions);
+    let mut pinned = Pinned::default();
+    for m in motions.iter_mut() {
+        if let Some(p) = m.poses.get_mut(from..) {
+            pinned += pin_feet(p);
+        }
+    }
+    let after = feet(motions);
+    FeetPinned {
+        pinned,
+        creep_m_s: (before.creep_m_s(), after.creep_m_s()),
+        skate_in_contact: (before.skate_in_contact(), after.skate_in_contact()),
+    }
 }
 
 /// What [`write_samples`] wrote.
@@ -44,6 +103,56 @@ pub struct Written {
     /// A conditioned model not asked for one category: the categories
     /// drawn in `category_sheet.png` ([`category_sheet`]), one row each.
     pub category_sheet: Vec<String>,
+    /// With [`SampleOptions::pin_feet`]: what pinning the feet did.
+    pub pinned: Option<FeetPinned>,
+}
+
+impl Written {
+    /// What `cargo xtask sample` prints of it: the files written to `out`
+    /// (reconstructions of `split`), and what pinning the feet did.
+    pub fn listing(&self, out: &Path, split: &str, o: &SampleOptions) -> String {
+        let mut s = format!("wrote {}:\n", out.display());
+        let mut line = |file: &str, what: String| s += &format!("  {file:<32}{what}\n");
+        line(
+            "samples.parquet, samples.json",
+            "motions (motion, frame, joint, x, y, z; CMU units)".into(),
+        );
+        if self.reconstructed > 0 {
+            let n = self.reconstructed;
+            line(
+                "reconstructions.parquet/.json",
+                format!("{n} real {split} windows and their reconstructions"),
+            );
+        }
+        line(
+            "bvh/ID.bvh",
+            "every motion as BVH (CMU Motionbuilder skeleton, 30 fps)".into(),
+        );
+        let c = o.sheet_columns;
+        line(
+            "contact_sheet.png",
+            format!("stick figures, {c} columns over the whole motion (labelled in seconds)"),
+        );
+        line(
+            "anim/*.png",
+            "animated PNG per motion (and real vs reconstruction)".into(),
+        );
+        line(
+            "viewer.html",
+            "open in a browser: 3-D, orbit/pan/zoom, play/pause, speed, frame slider".into(),
+        );
+        if !self.category_sheet.is_empty() {
+            let c = self.category_sheet.join(", ");
+            line(
+                "category_sheet.png",
+                format!("one row per category asked for: {c}"),
+            );
+        }
+        if let Some(p) = &self.pinned {
+            s += &format!("{p}\n");
+        }
+        s
+    }
 }
 
 /// The contact sheet of a conditioned model: one row per category of the
@@ -95,12 +204,13 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
     let m = Run::load(spec, &["train", &spec.split])?;
     create_dir(out)?;
     let started = std::time::Instant::now();
-    let motions: Vec<Motion> = m
+    let mut motions: Vec<Motion> = m
         .sample(o.n, o.frames, spec.context, spec.seed)?
         .iter()
         .enumerate()
         .map(|(k, x)| m.motion(format!("sample_{k:03}"), x))
         .collect();
+    let pinned = o.pin_feet.then(|| pin_generated(&mut motions, 0));
     let seconds = started.elapsed().as_secs_f64();
     write_motions(out, "samples", &motions)?;
     contact_sheet(&out.join("contact_sheet.png"), &motions, o.sheet_columns)?;
@@ -174,6 +284,7 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
         _ => Vec::new(),
     };
     Ok(Written {
+        pinned,
         category_sheet,
         reconstructed: pairs.len() / 2,
         epoch: m.meta.epoch,

@@ -7,6 +7,7 @@
 //! - [`figure`]: stick figures (contact sheet, animated PNG) on the
 //!   anti-aliased [`canvas`];
 //! - [`chart`]: line charts and histograms with `plotters`;
+//! - [`feet`]: planted toes pinned in place, the legs bent to reach them;
 //! - [`viewer`]: one self-contained HTML file with a 3-D viewer (three.js).
 //!
 //! The crate knows nothing of models or datasets: it takes [`Motion`]s and
@@ -15,6 +16,7 @@
 pub mod bvh;
 pub mod canvas;
 pub mod chart;
+pub mod feet;
 pub mod figure;
 pub mod io;
 pub mod solve;
