@@ -57,6 +57,9 @@ pub struct RunArgs {
     /// Draws of noise each run of a held motion is chosen from: each motion keeps the one whose mean pose is closest to its context's (1: one draw).
     #[arg(long, default_value_t = motion_vrnn::generate::POSE_DRAWS)]
     pub draws: usize,
+    /// Pin each planted toe of generated motions in place, the legs bent by IK to reach it (`sample` and `continue` write them so; `eval` measures them so).
+    #[arg(long)]
+    pub pin_feet: bool,
 }
 
 /// `cargo xtask sample` options.
@@ -76,9 +79,6 @@ pub struct SampleArgs {
     /// Output directory (default: RUN/samples).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Pin each planted toe of the generated motions in place, the legs bent by IK to reach it.
-    #[arg(long)]
-    pub pin_feet: bool,
 }
 
 /// `cargo xtask eval` options.
@@ -125,9 +125,6 @@ pub struct ContinueArgs {
     /// Continuations to write, from seeds --seed, --seed + 1, …
     #[arg(long, default_value_t = 1)]
     variations: usize,
-    /// Pin each planted toe of the generated frames in place, the legs bent by IK to reach it.
-    #[arg(long)]
-    pin_feet: bool,
 }
 
 /// `cargo xtask screenshot` options.
@@ -179,6 +176,7 @@ impl RunArgs {
             guidance: self.guidance,
             pace_gain: self.pace_gain,
             draws: self.draws,
+            pin_feet: self.pin_feet,
         }
     }
 }
@@ -191,7 +189,6 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         frames: a.frames,
         reconstruct: a.reconstruct,
         sheet_columns: 5,
-        pin_feet: a.pin_feet,
     };
     let w = write_samples(&a.run.spec(), &o, &out)?;
     w.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
@@ -342,7 +339,6 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
         seed: a.run.seed,
         variations: a.variations,
         context: a.run.context,
-        pin_feet: a.pin_feet,
     };
     o.validate()?;
     let (_, _, clip) = mocap_ingest::clip_of_file(&a.input, a.asf.clone(), &Default::default())

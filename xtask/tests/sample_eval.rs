@@ -281,6 +281,31 @@ fn sample_and_eval_write_what_they_promise() {
         "| measure | real | reconstructed | generated | reconstructed / real | generated / real |"
     ));
     assert!(md.contains("| hips horizontal speed, last 32 frames, m/s |"));
+    // The same motions with their planted toes pinned: the feet measured
+    // after it, the hips as before, and the report says so.
+    let pinned = eval_val(&run, &tmp.path().join("e-pinned"), &["--pin-feet"]);
+    assert_eq!(pinned["pin_feet"], true);
+    assert_eq!(v["pin_feet"], false);
+    let (g, p) = (&v["generated"], &pinned["generated"]);
+    for k in ["root_speed_m_s", "hip_height_m", "contact_share"] {
+        assert_eq!(g[k], p[k], "{k}");
+    }
+    let creep = |s: &serde_json::Value| s["creep_m_s"].as_f64().unwrap();
+    assert!(creep(p) <= creep(g), "{} > {}", creep(p), creep(g));
+    assert_eq!(v["real"], pinned["real"]);
+    let md = std::fs::read_to_string(tmp.path().join("e-pinned/eval.md")).unwrap();
+    assert!(md.contains("planted toes pinned in place"), "{md}");
+    let o = xtask()
+        .args(["sample", "--n", "3", "--frames", "40", "--reconstruct", "0"])
+        .args(["--pin-feet", "--run"])
+        .arg(&run)
+        .arg("--out")
+        .arg(tmp.path().join("s-pinned"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("feet pinned:"), "{stdout}");
 
     // Generated motions start from different real frames, not one mean pose.
     let j: serde_json::Value =

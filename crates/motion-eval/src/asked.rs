@@ -268,7 +268,7 @@ pub fn ask_each(
     let train = m.split("train")?;
     let (len, f) = (train.length, train.features);
     let opts = Options::default();
-    let global = |x: &Vec<f32>| to_poses(x, &m.data.stats);
+    let global = |x: &Vec<f32>| m.generated_poses(x);
     let real_of = |c: Category| -> Vec<Vec<Pose>> {
         seen.poses
             .iter()

@@ -154,7 +154,6 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                     frames: 128,
                     reconstruct: 0,
                     sheet_columns: 5,
-                    pin_feet: false,
                 };
                 write_samples(&spec, &sheet, &samples)?;
                 let png = images.join(format!("{name}.png"));

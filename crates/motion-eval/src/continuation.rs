@@ -28,9 +28,6 @@ pub struct ContinueOptions {
     pub variations: usize,
     /// Last frames of the clip the model reads (all of it when shorter).
     pub context: usize,
-    /// Pin the planted toes of the generated frames in place
-    /// ([`crate::samples::pin_generated`]; the clip's are left as they are).
-    pub pin_feet: bool,
 }
 
 impl Default for ContinueOptions {
@@ -40,7 +37,6 @@ impl Default for ContinueOptions {
             seed: 0,
             variations: 1,
             context: CONTEXT,
-            pin_feet: false,
         }
     }
 }
@@ -90,7 +86,8 @@ pub struct Continued {
     pub seed: u64,
     /// The seam, measured.
     pub seam: Seam,
-    /// With [`ContinueOptions::pin_feet`]: what pinning the feet did.
+    /// With [`crate::run::RunSpec::pin_feet`]: what pinning the feet did
+    /// to the generated frames (the clip's are left as they are).
     pub pinned: Option<FeetPinned>,
 }
 
@@ -191,7 +188,7 @@ pub fn continue_clip(
                 id: format!("continued_{seed}"),
                 poses: to_global(&frames),
             };
-            let pinned = o
+            let pinned = run
                 .pin_feet
                 .then(|| pin_generated(std::slice::from_mut(&mut motion), clip.len()));
             Ok(Continued {

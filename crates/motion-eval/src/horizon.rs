@@ -168,8 +168,7 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
                 .iter()
                 .map(|x| x[k * per..(k + 1) * per].to_vec())
                 .collect();
-            let poses: Vec<Vec<Pose>> =
-                windows.iter().map(|x| to_poses(x, &m.data.stats)).collect();
+            let poses: Vec<Vec<Pose>> = windows.iter().map(|x| m.generated_poses(x)).collect();
             let summaries = generate::summaries(&windows, NUM_FEATURES);
             Stretch {
                 start_s: (k * len) as f64 / fps,

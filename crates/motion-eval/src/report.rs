@@ -58,6 +58,10 @@ pub struct EvalReport {
     /// ([`motion_vrnn::generate::POSE_DRAWS`]; absent as `pace_gain`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub draws: Option<usize>,
+    /// Whether the generated motions' planted toes were pinned before they
+    /// were measured (`--pin-feet`; false in reports written before it).
+    #[serde(default)]
+    pub pin_feet: bool,
     pub windows: usize,
     pub frames: usize,
     /// Per frame, on the split, with the training noise convention.
@@ -154,11 +158,13 @@ pub fn report(
     let global = |set: &[Vec<f32>]| -> Vec<Vec<Pose>> {
         set.iter().map(|x| to_poses(x, &m.data.stats)).collect()
     };
+    let generated =
+        |set: &[Vec<f32>]| -> Vec<Vec<Pose>> { set.iter().map(|x| m.generated_poses(x)).collect() };
     let from_training = match contexts {
         Contexts::Split => {
             let g = m.sample(w.n, w.length, a.context, a.seed)?;
             Some((
-                motion_stats(&global(&g), &Options::default()),
+                motion_stats(&generated(&g), &Options::default()),
                 generate::summaries(&g, NUM_FEATURES),
             ))
         }
@@ -168,7 +174,7 @@ pub fn report(
     let (sr, sc, sg) = (
         motion_stats(&global(&real), &o),
         motion_stats(&global(&rec), &o),
-        motion_stats(&global(&gen), &o),
+        motion_stats(&generated(&gen), &o),
     );
     let summaries = |set: &[Vec<f32>]| generate::summaries(set, NUM_FEATURES);
     let train_windows = generate::windows_of(m.split("train")?);
@@ -188,6 +194,7 @@ pub fn report(
         temperature: m.model.model.config().parts.temperature.unwrap_or(1.0),
         pace_gain: held.map(|h| h.0),
         draws: held.map(|h| h.1),
+        pin_feet: a.pin_feet,
         windows: w.n,
         frames: w.length,
         neg_elbo_per_frame: (recon + kl) / t,
@@ -234,6 +241,9 @@ pub fn markdown(r: &EvalReport) -> String {
         },
         crate::horizon::held_sentence(r.pace_gain, r.draws)
     );
+    if r.pin_feet {
+        s += "Generated motions measured with their planted toes pinned in place (`--pin-feet`, docs/export.md).\n\n";
+    }
     s += &format!(
         "Per frame on `{}`: negative ELBO **{:.3}** = reconstruction {:.3} + KL {:.3} (normalised units).\n\n",
         r.split, r.neg_elbo_per_frame, r.recon_per_frame, r.kl_per_frame

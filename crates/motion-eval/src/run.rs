@@ -3,6 +3,7 @@
 
 use crate::EvalError;
 use candle_core::Device;
+use mocap_ingest::Pose;
 use motion_render::Motion;
 use motion_vrnn::data::Category;
 use motion_vrnn::data::{Dataset, Stats, Windows};
@@ -51,6 +52,10 @@ pub struct RunSpec {
     /// Draws each run of a held motion is chosen from
     /// ([`generate::POSE_DRAWS`]; at least 1).
     pub draws: usize,
+    /// Pin the planted toes of generated motions in place
+    /// ([`motion_render::feet::pin_feet`]): what `sample` and `continue`
+    /// write and what `eval` measures of them.
+    pub pin_feet: bool,
 }
 
 impl RunSpec {
@@ -72,6 +77,7 @@ impl RunSpec {
             guidance: generate::GUIDANCE,
             pace_gain: generate::PACE_GAIN,
             draws: generate::POSE_DRAWS,
+            pin_feet: false,
         }
     }
 }
@@ -102,6 +108,9 @@ pub struct Run {
     pub pace_gain: f64,
     /// Draws each run of a held motion is chosen from ([`RunSpec::draws`]).
     pub draws: usize,
+    /// Whether generated motions get their planted toes pinned
+    /// ([`RunSpec::pin_feet`]).
+    pub pin_feet: bool,
 }
 
 /// `--category own`: each motion asks for the category of the window it
@@ -221,6 +230,7 @@ impl Run {
             asked_explicitly: spec.category.is_some(),
             pace_gain: spec.pace_gain,
             draws: spec.draws,
+            pin_feet: spec.pin_feet,
         })
     }
 
@@ -373,6 +383,16 @@ impl Run {
             }
         }
         Ok((real, rec))
+    }
+
+    /// A generated motion's normalised features `[T × 58]` → its global
+    /// poses, the planted toes pinned when the run asks for it.
+    pub fn generated_poses(&self, x: &[f32]) -> Vec<Pose> {
+        let mut poses = to_poses(x, &self.data.stats);
+        if self.pin_feet {
+            motion_render::feet::pin_feet(&mut poses);
+        }
+        poses
     }
 
     /// Normalised features `[T × 58]` → a named global motion.

@@ -26,8 +26,6 @@ pub struct SampleOptions {
     pub reconstruct: usize,
     /// Columns of the contact sheet, spread over the whole motion.
     pub sheet_columns: usize,
-    /// Pin the generated motions' planted toes in place ([`pin_generated`]).
-    pub pin_feet: bool,
 }
 
 /// What pinning the planted toes of generated motions did
@@ -103,7 +101,7 @@ pub struct Written {
     /// A conditioned model not asked for one category: the categories
     /// drawn in `category_sheet.png` ([`category_sheet`]), one row each.
     pub category_sheet: Vec<String>,
-    /// With [`SampleOptions::pin_feet`]: what pinning the feet did.
+    /// With [`RunSpec::pin_feet`]: what pinning the feet did.
     pub pinned: Option<FeetPinned>,
 }
 
@@ -210,7 +208,7 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
         .enumerate()
         .map(|(k, x)| m.motion(format!("sample_{k:03}"), x))
         .collect();
-    let pinned = o.pin_feet.then(|| pin_generated(&mut motions, 0));
+    let pinned = m.pin_feet.then(|| pin_generated(&mut motions, 0));
     let seconds = started.elapsed().as_secs_f64();
     write_motions(out, "samples", &motions)?;
     contact_sheet(&out.join("contact_sheet.png"), &motions, o.sheet_columns)?;
