@@ -42,6 +42,10 @@ pub const LEFT_FOOT: usize = 3;
 pub const RIGHT_LEG: usize = 6;
 /// Index of `RightFoot` (the right ankle) in [`JOINT_NAMES`].
 pub const RIGHT_FOOT: usize = 7;
+/// Index of `LeftToeBase` (the left toe) in [`JOINT_NAMES`].
+pub const LEFT_TOE: usize = 4;
+/// Index of `RightToeBase` (the right toe) in [`JOINT_NAMES`].
+pub const RIGHT_TOE: usize = 8;
 /// Index of `LeftArm` (the left shoulder point) in [`JOINT_NAMES`].
 pub const LEFT_ARM: usize = 13;
 /// Index of `RightArm` (the right shoulder point) in [`JOINT_NAMES`].

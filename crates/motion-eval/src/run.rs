@@ -4,6 +4,7 @@
 use crate::EvalError;
 use candle_core::Device;
 use mocap_ingest::Pose;
+use motion_render::feet::{Pinned, Planted};
 use motion_render::Motion;
 use motion_vrnn::data::Category;
 use motion_vrnn::data::{Dataset, Stats, Windows};
@@ -390,7 +391,7 @@ impl Run {
     pub fn generated_poses(&self, x: &[f32]) -> Vec<Pose> {
         let mut poses = to_poses(x, &self.data.stats);
         if self.pin_feet {
-            motion_render::feet::pin_feet(&mut poses);
+            pin_feet(&mut poses);
         }
         poses
     }
@@ -399,6 +400,18 @@ impl Run {
     pub fn motion(&self, id: String, x: &[f32]) -> Motion {
         to_motion(id, x, &self.data.stats)
     }
+}
+
+/// Pins the planted toes of `poses` in place
+/// ([`motion_render::feet::pin_feet`]), planted meaning what the foot
+/// measures of `motion-metrics` count as creeping.
+pub fn pin_feet(poses: &mut [Pose]) -> Pinned {
+    let o = motion_metrics::Options::default();
+    let planted = Planted {
+        contact_m: o.contact_m,
+        slide_m_s: o.skate_m_s,
+    };
+    motion_render::feet::pin_feet(poses, &planted)
 }
 
 /// Normalised features `[T × 58]` → a named global motion.

@@ -2,11 +2,11 @@
 //! real windows) as Parquet, JSON and BVH, a contact sheet, animated PNGs
 //! and the 3-D viewer.
 
-use crate::run::{Run, RunSpec};
+use crate::run::{pin_feet, Run, RunSpec};
 use crate::{create_dir, EvalError};
 use motion_metrics::{foot_skating, FootFrames, Options};
 use motion_render::bvh::RoundTrip;
-use motion_render::feet::{pin_feet, Pinned};
+use motion_render::feet::Pinned;
 use motion_render::figure::{animation, contact_sheet, SHEET_MOTIONS_PER_ROW};
 use motion_render::io::write_motions;
 use motion_render::viewer::{write_viewer, MotionSet};

@@ -9,13 +9,13 @@
 #![allow(clippy::needless_range_loop)]
 
 use mocap_ingest::math::{norm, scale, sub};
-use mocap_ingest::skeleton::{Pose, JOINT_PARENTS, NUM_JOINTS};
+use mocap_ingest::skeleton::{Pose, JOINT_PARENTS, LEFT_TOE, NUM_JOINTS, RIGHT_TOE};
 use serde::{Deserialize, Serialize};
 
 /// Metres per CMU unit (`(1/0.45)` inches).
 pub const METRES_PER_UNIT: f64 = 0.0564;
 /// Foot joints for skating: LeftToeBase and RightToeBase.
-pub const FEET: [usize; 2] = [4, 8];
+pub const FEET: [usize; 2] = [LEFT_TOE, RIGHT_TOE];
 
 /// Options of the motion measures.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

@@ -1,9 +1,10 @@
 //! Planted toes pinned in place, the legs bent to reach them: the foot
 //! clean-up an animator does to captured or generated motion.
 //!
-//! A toe is planted on a frame where it is below 5 cm and has moved at most
-//! 0.5 m/s horizontally since the frame before: the foot-frames
-//! `motion-metrics` counts as creeping (`docs/metrics.md`). Over each run of
+//! A toe is planted on a frame where it is below [`Planted::contact_m`] and
+//! has moved at most [`Planted::slide_m_s`] horizontally since the frame
+//! before (`motion-eval` passes the thresholds of `motion-metrics`, 5 cm and
+//! 0.5 m/s: the foot-frames it counts as creeping, `docs/metrics.md`). Over each run of
 //! planted frames the toe is held at the horizontal place it had (as shown)
 //! when the run began, or dragged along at [`MAX_SHIFT_M`] from its decoded
 //! place once that is farther; its height is left as it is. The foot moves rigidly
@@ -15,13 +16,19 @@
 
 use crate::{FPS, METRES_PER_UNIT};
 use mocap_ingest::math::{add, dot, norm, scale, sub, Vec3};
-use mocap_ingest::skeleton::Pose;
+use mocap_ingest::skeleton::{
+    Pose, LEFT_FOOT, LEFT_LEG, LEFT_TOE, LEFT_UP_LEG, RIGHT_FOOT, RIGHT_LEG, RIGHT_TOE,
+    RIGHT_UP_LEG,
+};
 
-/// Toe height under which a foot may be planted (metres).
-pub const CONTACT_M: f64 = 0.05;
-
-/// Horizontal toe speed above which a foot slides rather than stands (m/s).
-pub const SLIDE_M_S: f64 = 0.5;
+/// When a toe is planted.
+#[derive(Clone, Copy, Debug)]
+pub struct Planted {
+    /// Toe height under which a foot may be planted (metres).
+    pub contact_m: f64,
+    /// Horizontal toe speed above which a foot slides rather than stands (m/s).
+    pub slide_m_s: f64,
+}
 
 /// Frames over which a planted foot's shift fades out once it lifts.
 pub const FADE_FRAMES: usize = 4;
@@ -32,7 +39,10 @@ pub const FADE_FRAMES: usize = 4;
 pub const MAX_SHIFT_M: f64 = 0.1;
 
 /// Each leg's hip, knee, ankle and toe (indices into the pose).
-const LEGS: [[usize; 4]; 2] = [[1, 2, 3, 4], [5, 6, 7, 8]];
+const LEGS: [[usize; 4]; 2] = [
+    [LEFT_UP_LEG, LEFT_LEG, LEFT_FOOT, LEFT_TOE],
+    [RIGHT_UP_LEG, RIGHT_LEG, RIGHT_FOOT, RIGHT_TOE],
+];
 
 /// What [`pin_feet`] did to one motion.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -54,12 +64,12 @@ impl std::ops::AddAssign for Pinned {
     }
 }
 
-/// Pins each planted toe of `poses` (CMU units, 30 fps) in place (see the
-/// module docs).
-pub fn pin_feet(poses: &mut [Pose]) -> Pinned {
+/// Pins each toe of `poses` (CMU units, 30 fps) in place where it is
+/// `planted` (see the module docs).
+pub fn pin_feet(poses: &mut [Pose], planted: &Planted) -> Pinned {
     let mut done = Pinned::default();
-    let contact = CONTACT_M / METRES_PER_UNIT;
-    let slide = SLIDE_M_S / METRES_PER_UNIT / FPS;
+    let contact = planted.contact_m / METRES_PER_UNIT;
+    let slide = planted.slide_m_s / METRES_PER_UNIT / FPS;
     let max_shift = MAX_SHIFT_M / METRES_PER_UNIT;
     for leg in LEGS {
         let toe = leg[3];
@@ -162,6 +172,11 @@ pub fn two_bone(h: Vec3, k: Vec3, target: Vec3, l1: f64, l2: f64) -> (Vec3, Vec3
 mod tests {
     use super::*;
 
+    const PLANTED: Planted = Planted {
+        contact_m: 0.05,
+        slide_m_s: 0.5,
+    };
+
     fn close(a: Vec3, b: Vec3) -> bool {
         norm(sub(a, b)) < 1e-12
     }
@@ -217,7 +232,7 @@ mod tests {
     fn a_creeping_toe_is_held_and_the_bones_keep_their_lengths() {
         let before = creeping(16, 8);
         let mut after = before.clone();
-        let done = pin_feet(&mut after);
+        let done = pin_feet(&mut after, &PLANTED);
         // 8 planted left foot-frames, 16 right ones.
         assert_eq!((done.planted, done.out_of_reach), (24, 0));
         assert!((done.max_shift - 0.7).abs() < 1e-12);
@@ -258,7 +273,7 @@ mod tests {
             p[4][0] = 1.0 + 0.25 * t as f64;
         }
         let before = m.clone();
-        let done = pin_feet(&mut m);
+        let done = pin_feet(&mut m, &PLANTED);
         let cap = MAX_SHIFT_M / METRES_PER_UNIT;
         assert!((done.max_shift - cap).abs() < 1e-9, "{}", done.max_shift);
         let last = m[19][4][0] - before[19][4][0];
@@ -277,13 +292,13 @@ mod tests {
             p[8][1] = 3.0;
         }
         let before = m.clone();
-        assert_eq!(pin_feet(&mut m), Pinned::default());
+        assert_eq!(pin_feet(&mut m, &PLANTED), Pinned::default());
         assert_eq!(m, before);
         // A toe planted on a leg of zero length, and an empty motion.
         let mut odd = vec![[[0.0; 3]; 19]; 3];
         odd[2][4] = [0.01, 0.0, 0.0];
-        pin_feet(&mut odd);
+        pin_feet(&mut odd, &PLANTED);
         assert!(odd.iter().flatten().flatten().all(|v| v.is_finite()));
-        assert_eq!(pin_feet(&mut []), Pinned::default());
+        assert_eq!(pin_feet(&mut [], &PLANTED), Pinned::default());
     }
 }
