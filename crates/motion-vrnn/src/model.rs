@@ -210,6 +210,13 @@ pub struct Parts {
     /// reaches every step that made a fed frame.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fed_jerk: Option<f64>,
+    /// Weight of the fed speed loss (None: off; needs
+    /// [`Parts::rollout_gradient`] and the skeleton's statistics): over
+    /// each window's fed frames, the root's mean horizontal speed must be
+    /// the real frames', as a ratio ([`fed_speed_loss`]). A loss on what
+    /// the rollout does over a window, not on each frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fed_speed: Option<f64>,
 }
 
 /// The normalised features whose means make the pace ([`Parts::pace`]):
@@ -588,6 +595,7 @@ impl Config {
             contact_speed: None,
             swing: None,
             fed_jerk: None,
+            fed_speed: None,
             rollout_gradient: false,
             last_round_gradient: false,
             ..p.clone()
@@ -851,6 +859,12 @@ impl Vrnn {
         if c.parts.fed_jerk.is_some() && !c.parts.rollout_gradient {
             candle_core::bail!(
                 "the fed jerk loss needs the gradient through the rollout (--rollout-gradient): without it the fed frames carry no gradient"
+            );
+        }
+        positive("fed speed weight", c.parts.fed_speed)?;
+        if c.parts.fed_speed.is_some() && !(c.parts.rollout_gradient && c.body.is_some()) {
+            candle_core::bail!(
+                "the fed speed loss needs the gradient through the rollout (--rollout-gradient) and the skeleton's statistics (a skeletal model)"
             );
         }
         if c.parts.rollout_gradient && c.parts.last_round_gradient {
@@ -1507,6 +1521,11 @@ impl MotionModel for Vrnn {
         if let (Some(w), Some(fed), Some(mask)) = (self.config.parts.fed_jerk, &fed, feed) {
             extra = (extra + (fed_jerk_loss(fed, x, mask)? * (w / b))?)?;
         }
+        if let (Some(w), Some(fed), Some(mask), Some(body)) =
+            (self.config.parts.fed_speed, &fed, feed, &self.config.body)
+        {
+            extra = (extra + (fed_speed_loss(fed, x, mask, &body.stats())? * (w / b))?)?;
+        }
         if let Some(w) = self.config.parts.swing {
             let e = self.prior_noise(&eps)?;
             let own = self.prior_decoded(&p, &s.h, &e, lengths.as_ref(), bias)?;
@@ -1789,6 +1808,40 @@ pub fn fed_jerk_loss(fed: &Tensor, x: &Tensor, mask: &Tensor) -> Result<Tensor> 
     (rms(fed)? - rms(x)?)?.sqr()?.sum_all()? * t as f64
 }
 
+/// Added to a window's mean speed before [`fed_speed_loss`] takes its
+/// logarithm (CMU units a frame; about 0.008 m/s): standing windows are
+/// compared without the logarithm of nothing.
+pub const FED_SPEED_FLOOR: f64 = 0.005;
+
+/// The fed speed loss of the frames the recurrence read, `fed: [B, T, F]`
+/// (real frames where `mask: [B, T]` is 1 replaced by the model's own),
+/// against the real `x` (normalised features, `body`'s statistics): per
+/// window, the mean over its fed frames of the root's horizontal speed
+/// `√(vx² + vz²)` (CMU units a frame), and the real frames' mean at the
+/// same frames; the squared difference of their logarithms (each plus
+/// [`FED_SPEED_FLOOR`]), so a standing window a third too fast counts as
+/// much as a running one, summed and scaled by `T` (so it weighs like a
+/// per-frame error). Zero for a window with no fed frame.
+pub fn fed_speed_loss(
+    fed: &Tensor,
+    x: &Tensor,
+    mask: &Tensor,
+    body: &feet::Stats,
+) -> Result<Tensor> {
+    use mocap_ingest::features::{VEL_X, VEL_Z};
+    let t = fed.dim(1)?;
+    let m = mask.unsqueeze(2)?;
+    let count = (m.sum_keepdim(1)? + 1e-6)?;
+    let speed = |a: &Tensor| -> Result<Tensor> {
+        let sq = |f: usize| feet::raw_col(a, f, body)?.sqr();
+        // The offset keeps the gradient finite at a standstill.
+        let s = ((sq(VEL_X)? + sq(VEL_Z)?)? + 1e-8)?.sqrt()?;
+        s.broadcast_mul(&m)?.sum_keepdim(1)?.broadcast_div(&count)
+    };
+    let log = |a: &Tensor| (speed(a)? + FED_SPEED_FLOOR)?.log();
+    (log(fed)? - log(x)?)?.sqr()?.sum_all()? * t as f64
+}
+
 /// A draw from a Gaussian head's `[μ | logit σ]` (last dimension `2Z`)
 /// with noise `e`.
 fn draw(p: &Tensor, e: &Tensor, latent: usize) -> Result<Tensor> {
@@ -1886,6 +1939,45 @@ mod tests {
                 .unwrap(),
             0.0
         );
+    }
+
+    /// Four frames, 1 and 3 fed: the fed frames' speeds 5 (3, 4) and 0,
+    /// the real ones 0, so the means are about 2.5 and 0 and the loss about
+    /// ln(2.505 / 0.0051)² · 4 = 153.6 (with velocity stds of 2 and 0.5 as
+    /// well: the same raw speeds). Frame 0 is fast but not fed: it does not
+    /// count.
+    #[test]
+    fn the_fed_speed_loss_compares_the_fed_frames_mean_speed() {
+        use mocap_ingest::features::{VEL_X, VEL_Z};
+        let dev = &Device::Cpu;
+        let mut v = vec![0.0f32; 4 * 58];
+        (v[VEL_X], v[58 + VEL_X], v[58 + VEL_Z]) = (10.0, 3.0, 4.0);
+        let fast = Tensor::from_vec(v, (1, 4, 58), dev).unwrap();
+        let mask = Tensor::from_vec(vec![0.0f32, 1.0, 0.0, 1.0], (1, 4), dev).unwrap();
+        let still = Tensor::zeros((1, 4, 58), DType::F32, dev).unwrap();
+        let value = |body: &Body, fed: &Tensor| {
+            fed_speed_loss(fed, &still, &mask, &body.stats())
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap() as f64
+        };
+        // A standstill's speed is the offset's root, 1e-4.
+        let mean = |sum: f64| sum / (2.0 + 1e-6) + FED_SPEED_FLOOR;
+        let expected = (mean(5.0 + 1e-4) / mean(2e-4)).ln().powi(2) * 4.0;
+        assert!((expected - 153.6).abs() < 0.1);
+        let body = identity_body();
+        assert!((value(&body, &fast) - expected).abs() < 1e-5 * expected);
+        // Velocity stds 2 and 0.5: the same raw speeds, the same loss.
+        let mut scaled = identity_body();
+        (scaled.std[VEL_X], scaled.std[VEL_Z]) = (2.0, 0.5);
+        let mut v = vec![0.0f32; 4 * 58];
+        (v[VEL_X], v[58 + VEL_X], v[58 + VEL_Z]) = (5.0, 1.5, 8.0);
+        let fed = Tensor::from_vec(v, (1, 4, 58), dev).unwrap();
+        assert!((value(&scaled, &fed) - expected).abs() < 1e-5 * expected);
+        // No fed frame: nothing to compare.
+        let none = Tensor::zeros((1, 4), DType::F32, dev).unwrap();
+        let loss = fed_speed_loss(&fast, &still, &none, &body.stats()).unwrap();
+        assert_eq!(loss.to_scalar::<f32>().unwrap(), 0.0);
     }
 
     /// Statistics that leave values as they are (mean 0, std 1).

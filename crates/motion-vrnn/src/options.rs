@@ -203,6 +203,8 @@ pub struct Overrides {
     pub swing_weight: Option<f64>,
     /// Weight of the fed jerk loss ([`crate::model::Parts::fed_jerk`]; 0: off).
     pub fed_jerk_weight: Option<f64>,
+    /// Weight of the fed speed loss ([`crate::model::Parts::fed_speed`]; 0: off).
+    pub fed_speed_weight: Option<f64>,
     /// The gradient through the fed-back frames
     /// ([`crate::model::Parts::rollout_gradient`]; `true`: on).
     pub rollout_gradient: bool,
@@ -261,6 +263,9 @@ impl Overrides {
         }
         if let Some(v) = self.fed_jerk_weight {
             parts.fed_jerk = (v != 0.0).then_some(v);
+        }
+        if let Some(v) = self.fed_speed_weight {
+            parts.fed_speed = (v != 0.0).then_some(v);
         }
         if self.rollout_gradient {
             parts.rollout_gradient = true;

@@ -251,6 +251,9 @@ impl TrainConfig {
         if let Some(w) = self.model.parts.fed_jerk {
             s += &format!(", the fed jerk loss weighed {w}");
         }
+        if let Some(w) = self.model.parts.fed_speed {
+            s += &format!(", the fed speed loss weighed {w}");
+        }
         if let Some(l) = self.model.parts.float_limit {
             s += &format!(", generated figures at most {l} units off the floor");
         }

@@ -379,6 +379,32 @@ fn the_fed_jerk_loss_changes_the_gradients_only() {
     assert!(with(&c, Some(1.0)).is_err());
 }
 
+/// The fed speed loss (`fed_speed`) leaves the reconstruction and KL as
+/// they are and changes the gradients; it needs the gradient through the
+/// rollout, the skeleton's statistics, and a positive weight.
+#[test]
+fn the_fed_speed_loss_changes_the_gradients_only() {
+    let mut c = model("motion", 5).model.config().clone();
+    c.parts.feed_rounds = Some(0);
+    c.parts.rollout_gradient = true;
+    let (x, eps) = batch(3, 8, 21);
+    let with = |c: &Config, w: Option<f64>| {
+        let mut c = c.clone();
+        c.parts.fed_speed = w;
+        init_model(&c, 5, &Device::Cpu)
+    };
+    let (a, ga) = grads(&with(&c, None).unwrap(), &x, &eps, 1.0);
+    let (b, gb) = grads(&with(&c, Some(1.0)).unwrap(), &x, &eps, 1.0);
+    assert_eq!(a, b);
+    assert!(rel(&ga.concat(), &gb.concat()) > 1e-4);
+    assert!(with(&c, Some(0.0)).is_err() && with(&c, Some(-1.0)).is_err());
+    let mut no_body = c.clone();
+    no_body.body = None;
+    assert!(with(&no_body, Some(1.0)).is_err());
+    c.parts.rollout_gradient = false;
+    assert!(with(&c, Some(1.0)).is_err());
+}
+
 /// The temperature scales the prior's noise after the real start frames and
 /// nothing else: sampling at temperature 0.5 is sampling at 1 with those
 /// steps' noise halved; it leaves the losses alone; it must be positive.
@@ -657,6 +683,7 @@ fn results_do_not_depend_on_the_thread_count() {
                     c.parts.rollout_gradient = true;
                     c.parts.swing = Some(1.0);
                     c.parts.fed_jerk = Some(1.0);
+                    c.parts.fed_speed = Some(1.0);
                 }
                 c.parts.last_round_gradient = name == "through its last round";
                 init_model(&c, 6, &Device::Cpu).unwrap()
