@@ -355,19 +355,18 @@ fn the_gradient_through_the_rollout_changes_the_gradients_only() {
     assert!(init_model(&c, 5, &Device::Cpu).is_err());
 }
 
-/// The fed jerk loss (`fed_jerk`) leaves the reconstruction and KL as they
-/// are and changes the gradients (it reaches the weights through the fed
-/// frames); it needs the gradient through the rollout, and a positive
-/// weight.
-#[test]
-fn the_fed_jerk_loss_changes_the_gradients_only() {
+/// A loss on the fed frames, set by `set`, leaves the reconstruction and KL
+/// as they are and changes the gradients (it reaches the weights through
+/// the fed frames); it needs the gradient through the rollout, and a
+/// positive weight.
+fn a_fed_loss_changes_the_gradients_only(set: fn(&mut Config, Option<f64>)) -> Config {
     let mut c = model("motion", 5).model.config().clone();
     c.parts.feed_rounds = Some(0);
     c.parts.rollout_gradient = true;
     let (x, eps) = batch(3, 8, 21);
     let with = |c: &Config, w: Option<f64>| {
         let mut c = c.clone();
-        c.parts.fed_jerk = w;
+        set(&mut c, w);
         init_model(&c, 5, &Device::Cpu)
     };
     let (a, ga) = grads(&with(&c, None).unwrap(), &x, &eps, 1.0);
@@ -375,34 +374,27 @@ fn the_fed_jerk_loss_changes_the_gradients_only() {
     assert_eq!(a, b);
     assert!(rel(&ga.concat(), &gb.concat()) > 1e-4);
     assert!(with(&c, Some(0.0)).is_err() && with(&c, Some(-1.0)).is_err());
-    c.parts.rollout_gradient = false;
-    assert!(with(&c, Some(1.0)).is_err());
+    let mut without = c.clone();
+    without.parts.rollout_gradient = false;
+    set(&mut without, Some(1.0));
+    assert!(init_model(&without, 5, &Device::Cpu).is_err());
+    c
 }
 
-/// The fed speed loss (`fed_speed`) leaves the reconstruction and KL as
-/// they are and changes the gradients; it needs the gradient through the
-/// rollout, the skeleton's statistics, and a positive weight.
+/// The fed jerk loss (`fed_jerk`).
+#[test]
+fn the_fed_jerk_loss_changes_the_gradients_only() {
+    a_fed_loss_changes_the_gradients_only(|c, w| c.parts.fed_jerk = w);
+}
+
+/// The fed speed loss (`fed_speed`), which also needs the skeleton's
+/// statistics.
 #[test]
 fn the_fed_speed_loss_changes_the_gradients_only() {
-    let mut c = model("motion", 5).model.config().clone();
-    c.parts.feed_rounds = Some(0);
-    c.parts.rollout_gradient = true;
-    let (x, eps) = batch(3, 8, 21);
-    let with = |c: &Config, w: Option<f64>| {
-        let mut c = c.clone();
-        c.parts.fed_speed = w;
-        init_model(&c, 5, &Device::Cpu)
-    };
-    let (a, ga) = grads(&with(&c, None).unwrap(), &x, &eps, 1.0);
-    let (b, gb) = grads(&with(&c, Some(1.0)).unwrap(), &x, &eps, 1.0);
-    assert_eq!(a, b);
-    assert!(rel(&ga.concat(), &gb.concat()) > 1e-4);
-    assert!(with(&c, Some(0.0)).is_err() && with(&c, Some(-1.0)).is_err());
-    let mut no_body = c.clone();
-    no_body.body = None;
-    assert!(with(&no_body, Some(1.0)).is_err());
-    c.parts.rollout_gradient = false;
-    assert!(with(&c, Some(1.0)).is_err());
+    let mut c = a_fed_loss_changes_the_gradients_only(|c, w| c.parts.fed_speed = w);
+    c.body = None;
+    c.parts.fed_speed = Some(1.0);
+    assert!(init_model(&c, 5, &Device::Cpu).is_err());
 }
 
 /// The temperature scales the prior's noise after the real start frames and
