@@ -252,12 +252,21 @@ pub const SPEED_CENTRE_M_S: f64 = 1.0;
 /// frame: `[B]`. Unlike the [`pace`]'s mean velocity, a motion that goes
 /// back and forth has it.
 pub fn root_speed(x: &Tensor, body: &Body) -> Result<Tensor> {
+    frame_speed(x, &body.stats(), 0.0)?.mean(1)?.squeeze(1)
+}
+
+/// The root's horizontal speed `√(vx² + vz² + offset)` in each frame of
+/// `x: [B, T, ≥ 58]` (normalised features, `body`'s statistics), CMU units
+/// a frame: `[B, T, 1]`. A positive `offset` keeps the gradient finite at
+/// a standstill.
+fn frame_speed(x: &Tensor, body: &feet::Stats, offset: f64) -> Result<Tensor> {
     use mocap_ingest::features::{VEL_X, VEL_Z};
-    let squared = |f: usize| feet::raw_col(x, f, &body.stats())?.sqr();
-    (squared(VEL_X)? + squared(VEL_Z)?)?
-        .sqrt()?
-        .mean(1)?
-        .squeeze(1)
+    let squared = |f: usize| feet::raw_col(x, f, body)?.sqr();
+    let sum = (squared(VEL_X)? + squared(VEL_Z)?)?;
+    match offset > 0.0 {
+        true => (sum + offset)?.sqrt(),
+        false => sum.sqrt(),
+    }
 }
 
 impl Parts {
@@ -1828,15 +1837,14 @@ pub fn fed_speed_loss(
     mask: &Tensor,
     body: &feet::Stats,
 ) -> Result<Tensor> {
-    use mocap_ingest::features::{VEL_X, VEL_Z};
     let t = fed.dim(1)?;
     let m = mask.unsqueeze(2)?;
     let count = (m.sum_keepdim(1)? + 1e-6)?;
     let speed = |a: &Tensor| -> Result<Tensor> {
-        let sq = |f: usize| feet::raw_col(a, f, body)?.sqr();
-        // The offset keeps the gradient finite at a standstill.
-        let s = ((sq(VEL_X)? + sq(VEL_Z)?)? + 1e-8)?.sqrt()?;
-        s.broadcast_mul(&m)?.sum_keepdim(1)?.broadcast_div(&count)
+        frame_speed(a, body, 1e-8)?
+            .broadcast_mul(&m)?
+            .sum_keepdim(1)?
+            .broadcast_div(&count)
     };
     let log = |a: &Tensor| (speed(a)? + FED_SPEED_FLOOR)?.log();
     (log(fed)? - log(x)?)?.sqr()?.sum_all()? * t as f64
