@@ -210,11 +210,14 @@ pub struct Parts {
     /// reaches every step that made a fed frame.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fed_jerk: Option<f64>,
-    /// Weight of the fed speed loss (None: off; needs
-    /// [`Parts::rollout_gradient`] and the skeleton's statistics): over
-    /// each window's fed frames, the root's mean horizontal speed must be
-    /// the real frames', as a ratio ([`fed_speed_loss`]). A loss on what
-    /// the rollout does over a window, not on each frame.
+    /// Weight of the fed speed loss (None: off; needs the skeleton's
+    /// statistics): over each window's fed frames, the root's mean
+    /// horizontal speed must be the real frames', as a ratio
+    /// ([`fed_speed_loss`]). A loss on what the rollout does over a window,
+    /// not on each frame. With [`Parts::rollout_gradient`] it reaches every
+    /// step of the rollout; without it the fed frames are decoded again,
+    /// with the graph, from the prior's draws at the states the scan
+    /// reached, so it reaches what made each frame from the state before it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fed_speed: Option<f64>,
 }
@@ -871,9 +874,9 @@ impl Vrnn {
             );
         }
         positive("fed speed weight", c.parts.fed_speed)?;
-        if c.parts.fed_speed.is_some() && !(c.parts.rollout_gradient && c.body.is_some()) {
+        if c.parts.fed_speed.is_some() && c.body.is_none() {
             candle_core::bail!(
-                "the fed speed loss needs the gradient through the rollout (--rollout-gradient) and the skeleton's statistics (a skeletal model)"
+                "the fed speed loss needs the skeleton's statistics (a skeletal model)"
             );
         }
         if c.parts.rollout_gradient && c.parts.last_round_gradient {
@@ -1533,7 +1536,19 @@ impl MotionModel for Vrnn {
         if let (Some(w), Some(fed), Some(mask), Some(body)) =
             (self.config.parts.fed_speed, &fed, feed, &self.config.body)
         {
-            extra = (extra + (fed_speed_loss(fed, x, mask, &body.stats())? * (w / b))?)?;
+            // Without the gradient through the rollout, the fed frames are
+            // made again from the prior's draws at the states the scan
+            // reached: the gradient reaches what made each of them from the
+            // state before it, and no further back.
+            let own =
+                match self.config.parts.rollout_gradient || self.config.parts.last_round_gradient {
+                    true => fed.clone(),
+                    false => {
+                        let e = self.prior_noise(&eps)?;
+                        self.prior_decoded(&p, &s.h, &e, lengths.as_ref(), bias)?
+                    }
+                };
+            extra = (extra + (fed_speed_loss(&own, x, mask, &body.stats())? * (w / b))?)?;
         }
         if let Some(w) = self.config.parts.swing {
             let e = self.prior_noise(&eps)?;
