@@ -698,6 +698,10 @@ fn results_do_not_depend_on_the_thread_count() {
                     c.parts.fed_speed = Some(1.0);
                 }
                 c.parts.last_round_gradient = name == "through its last round";
+                if name == "every depth" {
+                    // The fed speed loss one step deep.
+                    c.parts.fed_speed = Some(1.0);
+                }
                 init_model(&c, 6, &Device::Cpu).unwrap()
             }
             _ => model(name, 6),
