@@ -1533,27 +1533,32 @@ impl MotionModel for Vrnn {
         if let (Some(w), Some(fed), Some(mask)) = (self.config.parts.fed_jerk, &fed, feed) {
             extra = (extra + (fed_jerk_loss(fed, x, mask)? * (w / b))?)?;
         }
+        // The prior's one-step frames at the states the scan reached, with
+        // the graph, decoded once for the losses that read them: the swing
+        // loss, and the fed speed loss when the fed frames carry no graph of
+        // their own (these are those frames made again, so its gradient
+        // reaches what made each of them from the state before it, and no
+        // further back).
+        let parts = &self.config.parts;
+        let fed_graph = parts.rollout_gradient || parts.last_round_gradient;
+        let own = match parts.swing.is_some() || (parts.fed_speed.is_some() && !fed_graph) {
+            true => {
+                let e = self.prior_noise(&eps)?;
+                Some(self.prior_decoded(&p, &s.h, &e, lengths.as_ref(), bias)?)
+            }
+            false => None,
+        };
         if let (Some(w), Some(fed), Some(mask), Some(body)) =
-            (self.config.parts.fed_speed, &fed, feed, &self.config.body)
+            (parts.fed_speed, &fed, feed, &self.config.body)
         {
-            // Without the gradient through the rollout, the fed frames are
-            // made again from the prior's draws at the states the scan
-            // reached: the gradient reaches what made each of them from the
-            // state before it, and no further back.
-            let own =
-                match self.config.parts.rollout_gradient || self.config.parts.last_round_gradient {
-                    true => fed.clone(),
-                    false => {
-                        let e = self.prior_noise(&eps)?;
-                        self.prior_decoded(&p, &s.h, &e, lengths.as_ref(), bias)?
-                    }
-                };
-            extra = (extra + (fed_speed_loss(&own, x, mask, &body.stats())? * (w / b))?)?;
+            let frames = match &own {
+                Some(own) if !fed_graph => own,
+                _ => fed,
+            };
+            extra = (extra + (fed_speed_loss(frames, x, mask, &body.stats())? * (w / b))?)?;
         }
-        if let Some(w) = self.config.parts.swing {
-            let e = self.prior_noise(&eps)?;
-            let own = self.prior_decoded(&p, &s.h, &e, lengths.as_ref(), bias)?;
-            extra = (extra + (swing_loss(&own, x)? * (w / b))?)?;
+        if let (Some(w), Some(own)) = (parts.swing, &own) {
+            extra = (extra + (swing_loss(own, x)? * (w / b))?)?;
         }
         Ok(Losses {
             recon: (recon / b)?,

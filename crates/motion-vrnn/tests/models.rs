@@ -686,9 +686,10 @@ fn results_do_not_depend_on_the_thread_count() {
         "every depth",
         "through the rollout",
         "through its last round",
+        "one step deep",
     ] {
         let m = match name {
-            "every depth" | "through the rollout" | "through its last round" => {
+            "every depth" | "through the rollout" | "through its last round" | "one step deep" => {
                 let mut c = model("motion", 6).model.config().clone();
                 c.parts.feed_rounds = Some(0);
                 if name == "through the rollout" {
@@ -698,8 +699,8 @@ fn results_do_not_depend_on_the_thread_count() {
                     c.parts.fed_speed = Some(1.0);
                 }
                 c.parts.last_round_gradient = name == "through its last round";
-                if name == "every depth" {
-                    // The fed speed loss one step deep.
+                if name == "one step deep" {
+                    // The fed speed loss without the rollout's gradient.
                     c.parts.fed_speed = Some(1.0);
                 }
                 init_model(&c, 6, &Device::Cpu).unwrap()
