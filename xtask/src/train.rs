@@ -113,6 +113,9 @@ pub struct TrainArgs {
     /// Also train on the windows' left-right mirror images, each window mirrored every other epoch (measured, not adopted; docs/training.md).
     #[arg(long)]
     pub mirror: bool,
+    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; a step costs about 1.4×; measured, not adopted; docs/training.md).
+    #[arg(long, value_name = "N")]
+    pub rollout_last: Option<usize>,
     /// KL warm-up epochs (0: off).
     #[arg(long)]
     pub kl_warmup: Option<usize>,
@@ -199,7 +202,7 @@ impl TrainArgs {
             latent hidden extractor decoder epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
             judge_stretches condition condition_dropout rollouts_at_temperature float_limit
             contact_speed swing_weight fed_jerk_weight fed_speed_weight rollout_gradient last_round_gradient inits
-            feed_run average mirror
+            feed_run average mirror rollout_last
         }
     }
 }

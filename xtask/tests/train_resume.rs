@@ -83,9 +83,40 @@ fn the_weights_average_resumes_exactly() {
     kill_and_resume(&["--average", "0.9"]);
 }
 
-/// Train with `extra` options once through and once killed after epoch 3
-/// and resumed: the same metrics and bytes.
-fn kill_and_resume(extra: &[&str]) {
+/// `--rollout-last 8` trains the first 7 epochs as the plain run does and
+/// the last 8 otherwise (the gradient through the fed frames and the fed
+/// speed loss), and a run killed on either side of the switch resumes
+/// exactly.
+#[test]
+fn the_late_rollout_starts_on_time_and_resumes_exactly() {
+    integration_tests::require_samples!();
+    // One initialisation: the probes of several would run late epochs too.
+    let (tmp, ds, late) = kill_and_resume(&["--rollout-last", "8", "--inits", "1"]);
+    let plain = tmp.path().join("plain");
+    let mut c = train_cmd(&ds, &plain);
+    assert!(c.args(["--inits", "1"]).status().unwrap().success());
+    let plain = metrics(&plain);
+    assert_eq!(
+        late[..7],
+        plain[..7],
+        "the first 7 epochs are the plain run's"
+    );
+    for e in 7..15 {
+        assert_ne!(
+            late[e]["train_recon"],
+            plain[e]["train_recon"],
+            "epoch {}",
+            e + 1
+        );
+    }
+    let meta = last_meta(&tmp.path().join("a")).unwrap();
+    assert_eq!(meta["config"]["rollout_last"], 8, "{meta}");
+}
+
+/// Train with `extra` options once through (`a`) and once killed after
+/// epoch 3 and resumed (`b`): the same metrics and bytes. Returns the
+/// directory, the dataset and the metrics.
+fn kill_and_resume(extra: &[&str]) -> (tempfile::TempDir, PathBuf, Vec<serde_json::Value>) {
     let tmp = tempfile::tempdir().unwrap();
     let ds = dataset(tmp.path());
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
@@ -118,6 +149,8 @@ fn kill_and_resume(extra: &[&str]) {
         );
     }
     assert!(b.join("loss.png").is_file());
+    let m = metrics(&a);
+    (tmp, ds, m)
 }
 
 #[test]

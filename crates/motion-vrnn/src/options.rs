@@ -222,6 +222,8 @@ pub struct Overrides {
     pub average: Option<f64>,
     /// Train on the windows' mirror images too ([`TrainConfig::mirror`]).
     pub mirror: bool,
+    /// The last epochs through the rollout ([`TrainConfig::rollout_last`]; 0: none).
+    pub rollout_last: Option<usize>,
 }
 
 impl Overrides {
@@ -327,6 +329,9 @@ impl Overrides {
         if self.mirror {
             cfg.mirror = true;
         }
+        if let Some(v) = self.rollout_last {
+            cfg.rollout_last = (v > 0).then_some(v);
+        }
         match self.condition {
             Some(ConditionOn::None) => {
                 cfg.condition = None;
@@ -395,6 +400,31 @@ mod tests {
     }
 
     #[test]
+    fn the_last_epochs_go_through_the_rollout() {
+        let mut cfg = TrainConfig::standard();
+        Overrides {
+            epochs: Some(10),
+            rollout_last: Some(3),
+            ..Default::default()
+        }
+        .apply(&mut cfg);
+        assert_eq!(cfg.late_model(6), None);
+        for e in 7..10 {
+            let c = cfg.late_model(e).unwrap();
+            assert!(c.parts.rollout_gradient);
+            assert_eq!(c.parts.fed_speed, Some(crate::train::LATE_SPEED_WEIGHT));
+            let mut back = c.clone();
+            back.parts.rollout_gradient = false;
+            back.parts.fed_speed = None;
+            assert_eq!(back, cfg.model, "nothing else changes");
+        }
+        cfg.model.parts.fed_speed = Some(0.5);
+        assert_eq!(cfg.late_model(9).unwrap().parts.fed_speed, Some(0.5));
+        cfg.rollout_last = None;
+        assert_eq!(cfg.late_model(9), None);
+    }
+
+    #[test]
     fn off_values_become_none_and_the_judge_keeps_its_period() {
         let mut cfg = TrainConfig::standard();
         Overrides {
@@ -412,9 +442,11 @@ mod tests {
             inits: Some(1),
             feed_run: Some(1),
             average: Some(0.0),
+            rollout_last: Some(0),
             ..Default::default()
         }
         .apply(&mut cfg);
+        assert_eq!(cfg.rollout_last, None);
         assert_eq!(cfg.average, None);
         assert_eq!(cfg.inits, None);
         assert_eq!(cfg.feed_run, None);

@@ -74,7 +74,17 @@ pub struct TrainConfig {
     /// window `i` is mirrored when `i + e` is odd.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub mirror: bool,
+    /// Train the last this many epochs with the gradient through the
+    /// fed-back frames and the fed speed loss (`--rollout-last`;
+    /// [`TrainConfig::late_model`]); None: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rollout_last: Option<usize>,
 }
+
+/// Weight of the fed speed loss in the epochs of
+/// [`TrainConfig::rollout_last`] when the model has none of its own
+/// (`docs/training.md`, "Through the rollout, late").
+pub const LATE_SPEED_WEIGHT: f64 = 1.0;
 
 /// Epochs each initialisation is trained before they are compared
 /// (`--inits`): by epoch 20 the weak initialisations of the default have
@@ -169,6 +179,7 @@ impl TrainConfig {
             feed_run: None,
             average: None,
             mirror: false,
+            rollout_last: None,
         }
     }
 
@@ -239,6 +250,9 @@ impl TrainConfig {
         if let Some(n) = self.feed_run {
             s += &format!(", fed back in runs of {n} frames");
         }
+        if let Some(n) = self.rollout_last {
+            s += &format!(", the last {n} epochs through the rollout with the fed speed loss");
+        }
         if self.model.parts.rollout_gradient {
             s += ", the gradient through the fed-back frames";
         }
@@ -302,6 +316,20 @@ impl TrainConfig {
         let p = ((epoch + 1).saturating_sub(half) as f64 / span as f64).min(1.0);
         let share = last + (1.0 - last) * 0.5 * (1.0 + (std::f64::consts::PI * p).cos());
         self.adam.lr * share
+    }
+
+    /// The model's configuration in `epoch` (0-based) where it differs
+    /// from [`TrainConfig::model`]: in the last [`TrainConfig::rollout_last`]
+    /// epochs, with [`crate::model::Parts::rollout_gradient`] and the fed
+    /// speed loss (the model's weight, else [`LATE_SPEED_WEIGHT`]).
+    pub fn late_model(&self, epoch: usize) -> Option<Config> {
+        let n = self.rollout_last?;
+        (epoch + n >= self.epochs).then(|| {
+            let mut c = self.model.clone();
+            c.parts.rollout_gradient = true;
+            c.parts.fed_speed = c.parts.fed_speed.or(Some(LATE_SPEED_WEIGHT));
+            c
+        })
     }
 
     /// Share of frames fed back in `epoch` (0-based; scheduled sampling):
@@ -821,6 +849,14 @@ pub fn train(
         None => Vec::new(),
     };
     let config = &config;
+    if let Some(late) = config.late_model(config.epochs.saturating_sub(1)) {
+        // Refuse a model the late epochs cannot train before the first epoch.
+        Vrnn::new(
+            &late,
+            VarBuilder::from_varmap(&VarMap::new(), DType::F32, device),
+        )
+        .map_err(|e| TrainError::Invalid(format!("--rollout-last: {e}")))?;
+    }
     if config.average.is_some() && config.select.is_loss() {
         return Err(TrainError::Invalid(
             "the weights' average is what the judge keeps: --average needs --select generation"
@@ -1026,6 +1062,15 @@ impl Epochs<'_> {
         let lr = config.lr(epoch);
         adam.set_lr(lr);
         let perm = Rng::new(config.seed, 1000 + epoch as u64).permutation(train.n);
+        // The late epochs' model shares `t`'s variables.
+        let late = match config.late_model(epoch) {
+            Some(c) => Some(Vrnn::new(
+                &c,
+                VarBuilder::from_varmap(&t.varmap, DType::F32, device),
+            )?),
+            None => None,
+        };
+        let step_model = late.as_ref().unwrap_or(&t.model);
         let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
         for chunk in perm.chunks(config.batch) {
             let step = adam.step + 1;
@@ -1069,7 +1114,7 @@ impl Epochs<'_> {
                 None => None,
             };
             let ((r, k), grads) = sharded(
-                &t.model,
+                step_model,
                 &x,
                 &eps,
                 feed.as_ref(),
