@@ -113,7 +113,7 @@ pub struct TrainArgs {
     /// Also train on the windows' left-right mirror images, each window mirrored every other epoch (measured, not adopted; docs/training.md).
     #[arg(long)]
     pub mirror: bool,
-    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; a step costs about 1.4×; measured, not adopted; docs/training.md).
+    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; a late step costs about 1.65×; measured, not adopted; docs/training.md).
     #[arg(long, value_name = "N")]
     pub rollout_last: Option<usize>,
     /// KL warm-up epochs (0: off).
