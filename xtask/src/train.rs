@@ -60,6 +60,9 @@ pub struct TrainArgs {
     /// Weight of the fed speed loss: each window's fed frames must move the root as fast as real ones (0: off; through the whole rollout with --rollout-gradient, else one step deep; docs/training.md).
     #[arg(long)]
     pub fed_speed_weight: Option<f64>,
+    /// Weight of the root's motion (vel_x, vel_z, ang_vel_y) in the squared error (1: the ELBO's; docs/training.md).
+    #[arg(long)]
+    pub root_weight: Option<f64>,
     /// Let the gradient flow through the fed-back frames (a step costs about 1.4× the default; needs --feed-rounds 0; docs/training.md).
     #[arg(long)]
     pub rollout_gradient: bool,
@@ -201,7 +204,7 @@ impl TrainArgs {
             latent_filter output_filter feet_weight kl_weight self_feed feed_rounds temperature
             latent hidden extractor decoder epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
             judge_stretches condition condition_dropout rollouts_at_temperature float_limit
-            contact_speed swing_weight fed_jerk_weight fed_speed_weight rollout_gradient last_round_gradient inits
+            contact_speed swing_weight fed_jerk_weight fed_speed_weight root_weight rollout_gradient last_round_gradient inits
             feed_run average mirror rollout_last
         }
     }

@@ -220,7 +220,18 @@ pub struct Parts {
     /// reached, so it reaches what made each frame from the state before it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fed_speed: Option<f64>,
+    /// Weight of the root's motion ([`ROOT_FEATURES`]) in the squared
+    /// error, in place of the ELBO's 1 (None: 1): the term `(w − 1) Σ (x̂ −
+    /// x)²` over those features joins the extra losses, so the
+    /// reconstruction and the ELBO reported stay the model's. The decoder
+    /// spends more of itself on where the root goes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub root_weight: Option<f64>,
 }
+
+/// The normalised features of the root's motion ([`Parts::root_weight`]):
+/// `vel_x`, `vel_z`, `ang_vel_y`, the last three.
+pub const ROOT_FEATURES: std::ops::Range<usize> = 55..58;
 
 /// The normalised features whose means make the pace ([`Parts::pace`]):
 /// `root_y`, `vel_x`, `vel_z`, `ang_vel_y`.
@@ -608,6 +619,7 @@ impl Config {
             swing: None,
             fed_jerk: None,
             fed_speed: None,
+            root_weight: None,
             rollout_gradient: false,
             last_round_gradient: false,
             ..p.clone()
@@ -874,6 +886,7 @@ impl Vrnn {
             );
         }
         positive("fed speed weight", c.parts.fed_speed)?;
+        positive("root weight", c.parts.root_weight)?;
         if c.parts.fed_speed.is_some() && c.body.is_none() {
             candle_core::bail!(
                 "the fed speed loss needs the skeleton's statistics (a skeletal model)"
@@ -1529,6 +1542,10 @@ impl MotionModel for Vrnn {
         if let (Some(body), Some(l)) = (&self.config.body, &logits) {
             let still = self.config.parts.still_units();
             extra = (extra + (feet::contact_loss(l, x, &body.stats(), still)? / b)?)?;
+        }
+        if let Some(w) = self.config.parts.root_weight {
+            let root = |t: &Tensor| t.narrow(2, ROOT_FEATURES.start, ROOT_FEATURES.len());
+            extra = (extra + (squared_error(&root(&x_hat)?, &root(x)?)? * ((w - 1.0) / b))?)?;
         }
         if let (Some(w), Some(fed), Some(mask)) = (self.config.parts.fed_jerk, &fed, feed) {
             extra = (extra + (fed_jerk_loss(fed, x, mask)? * (w / b))?)?;

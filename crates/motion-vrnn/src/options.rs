@@ -205,6 +205,9 @@ pub struct Overrides {
     pub fed_jerk_weight: Option<f64>,
     /// Weight of the fed speed loss ([`crate::model::Parts::fed_speed`]; 0: off).
     pub fed_speed_weight: Option<f64>,
+    /// Weight of the root's motion in the squared error
+    /// ([`crate::model::Parts::root_weight`]; 1: the ELBO's).
+    pub root_weight: Option<f64>,
     /// The gradient through the fed-back frames
     /// ([`crate::model::Parts::rollout_gradient`]; `true`: on).
     pub rollout_gradient: bool,
@@ -268,6 +271,9 @@ impl Overrides {
         }
         if let Some(v) = self.fed_speed_weight {
             parts.fed_speed = (v != 0.0).then_some(v);
+        }
+        if let Some(v) = self.root_weight {
+            parts.root_weight = (v != 1.0).then_some(v);
         }
         if self.rollout_gradient {
             parts.rollout_gradient = true;

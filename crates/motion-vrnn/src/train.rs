@@ -268,6 +268,9 @@ impl TrainConfig {
         if let Some(w) = self.model.parts.fed_speed {
             s += &format!(", the fed speed loss weighed {w}");
         }
+        if let Some(w) = self.model.parts.root_weight {
+            s += &format!(", the root's motion weighed {w} in the squared error");
+        }
         if let Some(l) = self.model.parts.float_limit {
             s += &format!(", generated figures at most {l} units off the floor");
         }

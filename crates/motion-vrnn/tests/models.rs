@@ -417,6 +417,40 @@ fn the_fed_speed_loss_changes_the_gradients_only() {
     assert!(init_model(&c, 5, &Device::Cpu).is_err());
 }
 
+/// The root's weight (`root_weight`) adds `(w − 1)` times the root
+/// features' squared error to the extra losses and leaves the reported
+/// reconstruction and KL alone: linear in `w − 1`, zero at 1, and the
+/// gradients move.
+#[test]
+fn the_root_weight_changes_the_gradients_only() {
+    let c = model("motion", 5).model.config().clone();
+    let (x, eps) = batch(3, 8, 21);
+    let with = |w: Option<f64>| {
+        let mut c = c.clone();
+        c.parts.root_weight = w;
+        init_model(&c, 5, &Device::Cpu)
+    };
+    let extra = |w: Option<f64>| {
+        let t = with(w).unwrap();
+        let l = t
+            .model
+            .losses(&x, &eps, feed(&t, &x).as_ref(), None)
+            .unwrap();
+        l.extra.to_scalar::<f32>().unwrap() as f64
+    };
+    let (e1, e2, e4) = (extra(None), extra(Some(2.0)), extra(Some(4.0)));
+    assert!(e2 > e1, "{e1} {e2}");
+    assert!(
+        ((e4 - e1) - 3.0 * (e2 - e1)).abs() < 1e-3 * (e4 - e1),
+        "{e1} {e2} {e4}"
+    );
+    let (a, ga) = grads(&with(None).unwrap(), &x, &eps, 1.0);
+    let (b, gb) = grads(&with(Some(4.0)).unwrap(), &x, &eps, 1.0);
+    assert_eq!(a, b);
+    assert!(rel(&ga.concat(), &gb.concat()) > 1e-4);
+    assert!(with(Some(0.0)).is_err() && with(Some(-1.0)).is_err());
+}
+
 /// The temperature scales the prior's noise after the real start frames and
 /// nothing else: sampling at temperature 0.5 is sampling at 1 with those
 /// steps' noise halved; it leaves the losses alone; it must be positive.
