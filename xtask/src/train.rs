@@ -60,7 +60,7 @@ pub struct TrainArgs {
     /// Weight of the fed speed loss: each window's fed frames must move the root as fast as real ones (0: off; through the whole rollout with --rollout-gradient, else one step deep; docs/training.md).
     #[arg(long)]
     pub fed_speed_weight: Option<f64>,
-    /// Weight of the root's motion (vel_x, vel_z, ang_vel_y) in the squared error (1: the ELBO's; docs/training.md).
+    /// Weight of the root's motion (vel_x, vel_z, ang_vel_y) in the squared error (1: the ELBO's; measured, not adopted; docs/training.md).
     #[arg(long)]
     pub root_weight: Option<f64>,
     /// Let the gradient flow through the fed-back frames (a step costs about 1.4× the default; needs --feed-rounds 0; docs/training.md).
