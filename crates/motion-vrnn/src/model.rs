@@ -36,6 +36,7 @@ use crate::blocks::{
 use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::VarBuilder;
 use mocap_ingest::category::Category;
+use mocap_ingest::features::{ANG_VEL_Y, ROOT_Y, VEL_X, VEL_Z};
 use serde::{Deserialize, Serialize};
 
 pub use crate::blocks::SIGMA_MIN;
@@ -231,11 +232,11 @@ pub struct Parts {
 
 /// The normalised features of the root's motion ([`Parts::root_weight`]):
 /// `vel_x`, `vel_z`, `ang_vel_y`, the last three.
-pub const ROOT_FEATURES: std::ops::Range<usize> = 55..58;
+pub const ROOT_FEATURES: std::ops::Range<usize> = VEL_X..ANG_VEL_Y + 1;
 
 /// The normalised features whose means make the pace ([`Parts::pace`]):
 /// `root_y`, `vel_x`, `vel_z`, `ang_vel_y`.
-pub const PACE_FEATURES: [usize; 4] = [0, 55, 56, 57];
+pub const PACE_FEATURES: [usize; 4] = [ROOT_Y, VEL_X, VEL_Z, ANG_VEL_Y];
 
 /// Category weights `cond: [B, categories + 1]` with the pace `[B,
 /// PACE_FEATURES]` as their last columns, weighed like the category (`1 −`
@@ -274,7 +275,6 @@ pub fn root_speed(x: &Tensor, body: &Body) -> Result<Tensor> {
 /// a frame: `[B, T, 1]`. A positive `offset` keeps the gradient finite at
 /// a standstill.
 fn frame_speed(x: &Tensor, body: &feet::Stats, offset: f64) -> Result<Tensor> {
-    use mocap_ingest::features::{VEL_X, VEL_Z};
     let squared = |f: usize| feet::raw_col(x, f, body)?.sqr();
     let sum = (squared(VEL_X)? + squared(VEL_Z)?)?;
     match offset > 0.0 {
