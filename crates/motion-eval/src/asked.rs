@@ -118,6 +118,11 @@ pub struct Asked {
     /// The same for the stride (None in reports written before it).
     #[serde(default)]
     pub stride_spread: Option<(f64, f64)>,
+    /// What the classifier takes the motions asked for it for when not for
+    /// it: each other category it predicts, with its share of the motions,
+    /// largest first (empty in reports written before it).
+    #[serde(default)]
+    pub taken_for: Vec<(String, f64)>,
 }
 
 impl Asked {
@@ -304,6 +309,7 @@ pub fn ask_each(
             let p = o.predicted();
             p.iter().filter(|&&x| x == cat).count() as f64 / p.len().max(1) as f64
         };
+        let taken_for = taken_for(&go.predicted(), cat);
         let test_f = seen.features(&spec.split, cat);
         let real_accuracy = seen
             .split(&spec.split)
@@ -329,6 +335,7 @@ pub fn ask_each(
             unasked: plain(&un_poses).ok_or_else(missing)?,
             real_spread: [d.range(|s| s.root_speed_m_s), d.range(|s| s.contact_share)],
             stride_spread: Some(d.range(|s| s.stride_m)),
+            taken_for,
         });
         draws.push(d);
         all_labels.extend(std::iter::repeat_n(cat, gen.len()));
@@ -370,6 +377,35 @@ pub fn ask_each(
         speed_separation,
         stride_separation,
     }))
+}
+
+/// Each category other than `asked` among `predicted`, with its share of
+/// them, largest first (ties in [`Category::ALL`]'s order).
+fn taken_for(predicted: &[Category], asked: Category) -> Vec<(String, f64)> {
+    let n = predicted.len().max(1) as f64;
+    let mut out: Vec<(String, f64)> = Category::ALL
+        .iter()
+        .filter(|&&c| c != asked)
+        .map(|&c| (c, predicted.iter().filter(|&&p| p == c).count()))
+        .filter(|&(_, k)| k > 0)
+        .map(|(c, k)| (c.name().to_string(), k as f64 / n))
+        .collect();
+    out.sort_by(|a, b| b.1.total_cmp(&a.1));
+    out
+}
+
+/// The first `k` of `taken` as `name share`, e.g. `gesture 20 %, play 8 %`
+/// ("–" when none).
+fn taken_text(taken: &[(String, f64)], k: usize) -> String {
+    if taken.is_empty() {
+        return "–".into();
+    }
+    let each: Vec<String> = taken
+        .iter()
+        .take(k)
+        .map(|(c, v)| format!("{c} {:.0} %", 100.0 * v))
+        .collect();
+    each.join(", ")
 }
 
 /// [`Separation`] of the categories `kept` (each with its real windows'
@@ -504,10 +540,11 @@ pub fn markdown(a: &AskedSet) -> String {
          category asked for, against its share on the real {split} windows of it. Speed, contact and stride: real \
          windows of the category (all splits) → asked → unasked, with the ratio of draws of half the real \
          windows to all of them in brackets (stride: a diagnostic, not a goal). Creep: how fast the planted toes \
-         slide (contact, not skating), real → asked, a diagnostic. Goals (categories with at least {} training windows): \
+         slide (contact, not skating), real → asked, a diagnostic. Taken for: the categories the classifier puts \
+         the other asked motions in, the two largest shares. Goals (categories with at least {} training windows): \
          recognised ≥ 0.9 × real, speed and contact 0.75–1.25 × real.\n\n\
-         | category | train / {split} windows | recognised: real {split} → asked (unasked) | hips speed m/s | contact | stride m | creep m/s | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+         | category | train / {split} windows | recognised: real {split} → asked (unasked) | taken for | hips speed m/s | contact | stride m | creep m/s | jerk m/s³ | APD m | feature Fréchet (ref) | misses |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
         a.guidance,
         a.per_category,
         MIN_TRAIN_WINDOWS,
@@ -521,13 +558,14 @@ pub fn markdown(a: &AskedSet) -> String {
             (true, m) => m.join(", "),
         };
         s += &format!(
-            "| {} | {} / {} | {} → **{}** ({}) | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.3} → {:.3} | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
+            "| {} | {} / {} | {} → **{}** ({}) | {} | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.2} → **{:.2}** ({:.2}) {} | {:.3} → {:.3} | {:.0} → {:.0} | {} → {} | {} ({}) | {} |\n",
             c.category,
             c.train_windows,
             c.split_windows,
             c.real_accuracy.map_or("n/a".into(), pct),
             pct(c.accuracy),
             pct(c.accuracy_unasked),
+            taken_text(&c.taken_for, 2),
             c.real.speed_m_s,
             c.generated.speed_m_s,
             c.unasked.speed_m_s,
@@ -586,6 +624,28 @@ pub fn evaluate(spec: &RunSpec, dir: &std::path::Path) -> Result<AskedSet, EvalE
     })
 }
 
+/// The seeds' `taken_for` averaged by category (a seed without one counts
+/// 0), largest first.
+fn mean_taken(each: &[&Asked]) -> Vec<(String, f64)> {
+    let n = each.len().max(1) as f64;
+    let mut out: Vec<(String, f64)> = Category::ALL
+        .iter()
+        .map(|c| {
+            let name = c.name();
+            let sum: f64 = each
+                .iter()
+                .flat_map(|a| &a.taken_for)
+                .filter(|(t, _)| t == name)
+                .map(|(_, v)| v)
+                .sum();
+            (name.to_string(), sum / n)
+        })
+        .filter(|(_, v)| *v > 0.0)
+        .collect();
+    out.sort_by(|a, b| b.1.total_cmp(&a.1));
+    out
+}
+
 /// The results page's section: every category asked of the seeds' runs
 /// (`(seed, asked)`), mean ± std over the seeds, the goals met on the mean
 /// and the seeds that miss.
@@ -606,11 +666,12 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
          the same noise and no category (what the contexts alone give). Speed and contact are generated ÷ the \
          real windows of the category (all splits), with the range of draws of half those real windows in \
          brackets; stride (how far the toes swing past each other, [metrics.md](metrics.md)) is a diagnostic \
-         beside them. Goals for categories with at least {} training windows: recognised ≥ 0.9 × the real {split} \
+         beside them; \"taken for\": the categories the classifier puts the other asked motions in (the \
+         two largest shares, mean over the seeds). Goals for categories with at least {} training windows: recognised ≥ 0.9 × the real {split} \
          windows of the category, speed and contact 0.75–1.25×.\n\n\
          | category | train / {split} windows | recognised, real {split} | recognised, asked | recognised, unasked | \
-         hips speed ÷ real | contact ÷ real | stride ÷ real | goals missed (mean) | seeds that miss |\n\
-         |---|---|---|---|---|---|---|---|---|---|\n",
+         taken for | hips speed ÷ real | contact ÷ real | stride ÷ real | goals missed (mean) | seeds that miss |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
         model.title,
         model.about,
         runs.len(),
@@ -654,7 +715,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
             .collect();
         let spread = |i: usize| bracket(Some(c.real_spread[i]));
         s += &format!(
-            "| {} | {} / {} | {} | {} | {} | {} {} | {} {} | {} | {} | {} |\n",
+            "| {} | {} / {} | {} | {} | {} | {} | {} {} | {} {} | {} | {} | {} |\n",
             c.category,
             c.train_windows,
             c.split_windows,
@@ -662,6 +723,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
                 .map_or("n/a".into(), |a| format!("{:.0} %", 100.0 * a)),
             pct(|a| a.accuracy),
             pct(|a| a.accuracy_unasked),
+            taken_text(&mean_taken(&each), 2),
             ratio(|p| p.speed_m_s),
             spread(0),
             ratio(|p| p.contact),
@@ -732,6 +794,7 @@ mod tests {
             unasked: plain(0.2, 0.9),
             real_spread: [(0.9, 1.1), (0.95, 1.05)],
             stride_spread: Some((0.8, 1.2)),
+            taken_for: Vec::new(),
         }
     }
 
@@ -755,6 +818,11 @@ mod tests {
     fn eval_md_prints_each_category_and_the_whole_set() {
         let mut walk = asked(0.9, 0.35, 0.6);
         walk.generated.stride_m = 0.18;
+        walk.taken_for = vec![
+            ("gesture".into(), 0.2),
+            ("play".into(), 0.08),
+            ("jump".into(), 0.02),
+        ];
         let set = AskedSet {
             split: "test".into(),
             guidance: 1.25,
@@ -783,6 +851,11 @@ mod tests {
             "{s}"
         );
         let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
+        // Recognition, then the two categories it is most taken for.
+        assert!(
+            row.contains("→ **90 %** (10 %) | gesture 20 %, play 8 % | 1.00 → **0.35**"),
+            "{row}"
+        );
         // Stride: real → asked (unasked).
         assert!(
             row.contains("| 0.30 → **0.18** (0.30) [0.80–1.20] |"),
@@ -818,16 +891,22 @@ mod tests {
             stride_separation: None,
         };
         // Seed 0 is too slow, seed 1 fast enough: the mean (0.8) meets it.
-        let runs = [
-            (0, set(asked(0.9, 0.6, 0.6))),
-            (1, set(asked(0.9, 1.0, 0.6))),
-        ];
+        // Taken for: gesture (0.1 + 0.0) / 2, play (0.04 + 0.08) / 2.
+        let mut slow = asked(0.9, 0.6, 0.6);
+        slow.taken_for = vec![("gesture".into(), 0.1), ("play".into(), 0.04)];
+        let mut fast = asked(0.9, 1.0, 0.6);
+        fast.taken_for = vec![("play".into(), 0.08)];
+        let runs = [(0, set(slow)), (1, set(fast))];
         let s = page_section(&runs, "sheet.png", &STANDARD_ASKED);
         assert!(s.contains(
             "## Motion to order: `--preset standard`, conditioned on the category (issue 25)"
         ));
         let row = s.lines().find(|l| l.starts_with("| walk")).unwrap();
         assert!(row.contains("90 ± 0"), "{row}");
+        assert!(
+            row.contains("| 10 ± 0 | play 6 %, gesture 5 % | 0.80 ± 0.28"),
+            "{row}"
+        );
         assert!(row.contains("0.80 ± 0.28"), "{row}");
         assert!(
             row.contains("| 1.00 ± 0.00 [0.80–1.20] | none | 0 (speed) |"),
@@ -854,6 +933,21 @@ mod tests {
         );
         // Before the contact sheet.
         assert!(s.find("Categories kept apart") < s.find("![one row"), "{s}");
+    }
+
+    #[test]
+    fn taken_for_counts_the_other_categories_largest_first() {
+        use Category::*;
+        let p = [Walk, Gesture, Play, Gesture, Walk, Walk, Play, Jump];
+        let t = taken_for(&p, Walk);
+        let names: Vec<&str> = t.iter().map(|(c, _)| c.as_str()).collect();
+        // Gesture and play 2 of 8 each (a tie: in the categories' order), jump 1.
+        assert_eq!(names, ["play", "gesture", "jump"]);
+        assert_eq!(t[0].1, 0.25);
+        assert_eq!(t[2].1, 0.125);
+        assert!(taken_for(&[Walk, Walk], Walk).is_empty());
+        assert_eq!(taken_text(&t, 2), "play 25 %, gesture 25 %");
+        assert_eq!(taken_text(&[], 2), "–");
     }
 
     #[test]
