@@ -119,6 +119,9 @@ pub struct TrainArgs {
     /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; a late step costs about 1.65×; measured, not adopted; docs/training.md).
     #[arg(long, value_name = "N")]
     pub rollout_last: Option<usize>,
+    /// Weight of the root's motion in the squared error in those last N epochs only (needs --rollout-last; measured, not adopted; docs/training.md).
+    #[arg(long, value_name = "W")]
+    pub late_root_weight: Option<f64>,
     /// KL warm-up epochs (0: off).
     #[arg(long)]
     pub kl_warmup: Option<usize>,
@@ -205,7 +208,7 @@ impl TrainArgs {
             latent hidden extractor decoder epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
             judge_stretches condition condition_dropout rollouts_at_temperature float_limit
             contact_speed swing_weight fed_jerk_weight fed_speed_weight root_weight rollout_gradient last_round_gradient inits
-            feed_run average mirror rollout_last
+            feed_run average mirror rollout_last late_root_weight
         }
     }
 }

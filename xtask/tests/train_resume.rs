@@ -244,3 +244,28 @@ fn the_weights_average_needs_the_judge_and_a_decay_under_1() {
         assert!(err.contains(says), "{args:?}: {err}");
     }
 }
+
+#[test]
+fn the_late_root_weight_needs_the_late_epochs_and_a_positive_weight() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = dataset(tmp.path());
+    for (args, says) in [
+        (
+            vec!["--late-root-weight", "4"],
+            "--late-root-weight weighs the root in the last epochs: it needs --rollout-last N",
+        ),
+        (
+            vec!["--rollout-last", "1", "--late-root-weight=-1"],
+            "root weight must be positive, got -1",
+        ),
+    ] {
+        let out = train_for("2", &ds, &tmp.path().join("run"))
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{args:?} trained");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+}

@@ -227,6 +227,9 @@ pub struct Overrides {
     pub mirror: bool,
     /// The last epochs through the rollout ([`TrainConfig::rollout_last`]; 0: none).
     pub rollout_last: Option<usize>,
+    /// The root's weight in those epochs ([`TrainConfig::late_root_weight`];
+    /// 1: the ELBO's).
+    pub late_root_weight: Option<f64>,
 }
 
 impl Overrides {
@@ -338,6 +341,9 @@ impl Overrides {
         if let Some(v) = self.rollout_last {
             cfg.rollout_last = (v > 0).then_some(v);
         }
+        if let Some(v) = self.late_root_weight {
+            cfg.late_root_weight = (v != 1.0).then_some(v);
+        }
         match self.condition {
             Some(ConditionOn::None) => {
                 cfg.condition = None;
@@ -426,6 +432,15 @@ mod tests {
         }
         cfg.model.parts.fed_speed = Some(0.5);
         assert_eq!(cfg.late_model(9).unwrap().parts.fed_speed, Some(0.5));
+        // The root weighed more in the late epochs only.
+        Overrides {
+            late_root_weight: Some(4.0),
+            ..Default::default()
+        }
+        .apply(&mut cfg);
+        assert_eq!(cfg.late_model(9).unwrap().parts.root_weight, Some(4.0));
+        assert_eq!(cfg.model.parts.root_weight, None);
+        assert_eq!(cfg.late_model(6), None);
         cfg.rollout_last = None;
         assert_eq!(cfg.late_model(9), None);
     }
@@ -449,10 +464,12 @@ mod tests {
             feed_run: Some(1),
             average: Some(0.0),
             rollout_last: Some(0),
+            late_root_weight: Some(1.0),
             ..Default::default()
         }
         .apply(&mut cfg);
         assert_eq!(cfg.rollout_last, None);
+        assert_eq!(cfg.late_root_weight, None);
         assert_eq!(cfg.average, None);
         assert_eq!(cfg.inits, None);
         assert_eq!(cfg.feed_run, None);

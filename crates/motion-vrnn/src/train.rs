@@ -79,6 +79,11 @@ pub struct TrainConfig {
     /// [`TrainConfig::late_model`]); None: none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rollout_last: Option<usize>,
+    /// The root's weight in the squared error in those last epochs only
+    /// (`--late-root-weight`; [`crate::model::Parts::root_weight`]); None:
+    /// the model's own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub late_root_weight: Option<f64>,
 }
 
 /// Weight of the fed speed loss in the epochs of
@@ -180,6 +185,7 @@ impl TrainConfig {
             average: None,
             mirror: false,
             rollout_last: None,
+            late_root_weight: None,
         }
     }
 
@@ -252,6 +258,9 @@ impl TrainConfig {
         }
         if let Some(n) = self.rollout_last {
             s += &format!(", the last {n} epochs through the rollout with the fed speed loss");
+            if let Some(w) = self.late_root_weight {
+                s += &format!(" and the root's motion weighed {w}");
+            }
         }
         if self.model.parts.rollout_gradient {
             s += ", the gradient through the fed-back frames";
@@ -324,13 +333,17 @@ impl TrainConfig {
     /// The model's configuration in `epoch` (0-based) where it differs
     /// from [`TrainConfig::model`]: in the last [`TrainConfig::rollout_last`]
     /// epochs, with [`crate::model::Parts::rollout_gradient`] and the fed
-    /// speed loss (the model's weight, else [`LATE_SPEED_WEIGHT`]).
+    /// speed loss (the model's weight, else [`LATE_SPEED_WEIGHT`]), and the
+    /// root's weight [`TrainConfig::late_root_weight`] where given.
     pub fn late_model(&self, epoch: usize) -> Option<Config> {
         let n = self.rollout_last?;
         (epoch + n >= self.epochs).then(|| {
             let mut c = self.model.clone();
             c.parts.rollout_gradient = true;
             c.parts.fed_speed = c.parts.fed_speed.or(Some(LATE_SPEED_WEIGHT));
+            if let Some(w) = self.late_root_weight {
+                c.parts.root_weight = Some(w);
+            }
             c
         })
     }
@@ -852,6 +865,12 @@ pub fn train(
         None => Vec::new(),
     };
     let config = &config;
+    if config.late_root_weight.is_some() && config.rollout_last.is_none() {
+        return Err(TrainError::Invalid(
+            "--late-root-weight weighs the root in the last epochs: it needs --rollout-last N"
+                .into(),
+        ));
+    }
     if let Some(late) = config.late_model(config.epochs.saturating_sub(1)) {
         // Refuse a model the late epochs cannot train before the first epoch.
         Vrnn::new(
