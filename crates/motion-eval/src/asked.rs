@@ -305,11 +305,7 @@ pub fn ask_each(
         let (gen, unasked) = (asked(spec.guidance)?, asked(0.0)?);
         let seen_by = |set: &[Vec<f32>]| c.outputs(&as_windows(set, len, f), &m.device);
         let (go, uo) = (seen_by(&gen)?, seen_by(&unasked)?);
-        let share = |o: &Outputs| {
-            let p = o.predicted();
-            p.iter().filter(|&&x| x == cat).count() as f64 / p.len().max(1) as f64
-        };
-        let taken_for = taken_for(&go.predicted(), cat);
+        let (gp, up) = (go.predicted(), uo.predicted());
         let test_f = seen.features(&spec.split, cat);
         let real_accuracy = seen
             .split(&spec.split)
@@ -325,8 +321,8 @@ pub fn ask_each(
             train_windows: count("train", cat),
             split_windows: count(&spec.split, cat),
             real_accuracy,
-            accuracy: share(&go),
-            accuracy_unasked: share(&uo),
+            accuracy: share_of(&gp, cat),
+            accuracy_unasked: share_of(&up, cat),
             frechet: two(&test_f).map(|_| classifier::feature_frechet(&go.features, &test_f)),
             frechet_reference: two(&test_f)
                 .map(|_| classifier::feature_frechet(&seen.features("train", cat), &test_f)),
@@ -335,7 +331,7 @@ pub fn ask_each(
             unasked: plain(&un_poses).ok_or_else(missing)?,
             real_spread: [d.range(|s| s.root_speed_m_s), d.range(|s| s.contact_share)],
             stride_spread: Some(d.range(|s| s.stride_m)),
-            taken_for,
+            taken_for: taken_for(&gp, cat),
         });
         draws.push(d);
         all_labels.extend(std::iter::repeat_n(cat, gen.len()));
@@ -379,19 +375,30 @@ pub fn ask_each(
     }))
 }
 
-/// Each category other than `asked` among `predicted`, with its share of
-/// them, largest first (ties in [`Category::ALL`]'s order).
-fn taken_for(predicted: &[Category], asked: Category) -> Vec<(String, f64)> {
-    let n = predicted.len().max(1) as f64;
+/// Share of `predicted` that is `c` (0 when empty).
+fn share_of(predicted: &[Category], c: Category) -> f64 {
+    predicted.iter().filter(|&&p| p == c).count() as f64 / predicted.len().max(1) as f64
+}
+
+/// Each category with its `share`, those above 0, largest first (ties in
+/// [`Category::ALL`]'s order).
+fn ranked(share: impl Fn(Category) -> f64) -> Vec<(String, f64)> {
     let mut out: Vec<(String, f64)> = Category::ALL
         .iter()
-        .filter(|&&c| c != asked)
-        .map(|&c| (c, predicted.iter().filter(|&&p| p == c).count()))
-        .filter(|&(_, k)| k > 0)
-        .map(|(c, k)| (c.name().to_string(), k as f64 / n))
+        .map(|&c| (c.name().to_string(), share(c)))
+        .filter(|(_, v)| *v > 0.0)
         .collect();
     out.sort_by(|a, b| b.1.total_cmp(&a.1));
     out
+}
+
+/// Each category other than `asked` among `predicted`, with its share of
+/// them, largest first ([`ranked`]).
+fn taken_for(predicted: &[Category], asked: Category) -> Vec<(String, f64)> {
+    ranked(|c| match c == asked {
+        true => 0.0,
+        false => share_of(predicted, c),
+    })
 }
 
 /// The first `k` of `taken` as `name share`, e.g. `gesture 20 %, play 8 %`
@@ -628,22 +635,15 @@ pub fn evaluate(spec: &RunSpec, dir: &std::path::Path) -> Result<AskedSet, EvalE
 /// 0), largest first.
 fn mean_taken(each: &[&Asked]) -> Vec<(String, f64)> {
     let n = each.len().max(1) as f64;
-    let mut out: Vec<(String, f64)> = Category::ALL
-        .iter()
-        .map(|c| {
-            let name = c.name();
-            let sum: f64 = each
-                .iter()
-                .flat_map(|a| &a.taken_for)
-                .filter(|(t, _)| t == name)
-                .map(|(_, v)| v)
-                .sum();
-            (name.to_string(), sum / n)
-        })
-        .filter(|(_, v)| *v > 0.0)
-        .collect();
-    out.sort_by(|a, b| b.1.total_cmp(&a.1));
-    out
+    ranked(|c| {
+        let sum: f64 = each
+            .iter()
+            .flat_map(|a| &a.taken_for)
+            .filter(|(t, _)| t == c.name())
+            .map(|(_, v)| v)
+            .sum();
+        sum / n
+    })
 }
 
 /// The results page's section: every category asked of the seeds' runs
