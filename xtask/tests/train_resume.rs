@@ -256,7 +256,7 @@ fn the_late_root_weight_needs_the_late_epochs_and_a_positive_weight() {
     integration_tests::require_samples!();
     refused(&[
         (
-            &["--late-root-weight", "4"],
+            &["--rollout-last", "0", "--late-root-weight", "4"],
             "--late-root-weight weighs the root in the last epochs: it needs --rollout-last N",
         ),
         (

@@ -25,6 +25,13 @@ pub const CONDITIONED: &str = "motion+category";
 /// [`crate::options::MINUTE_DECODER`]).
 pub const DEFAULT: &str = "minute";
 
+/// The bench's name for a step of the default training's late epochs
+/// ([`crate::options::MINUTE_LATE`] of its 400): [`DEFAULT`] with the
+/// gradient through the fed-back frames, the fed speed loss and the root
+/// weighed [`crate::options::MINUTE_LATE_ROOT_WEIGHT`]
+/// ([`crate::train::TrainConfig::late_model`]).
+pub const LATE: &str = "minute-late";
+
 /// The bench's name for [`DEFAULT`] with every size twice the paper's ([`Config::widened`];
 /// `cargo xtask train --extractor 64,64 --hidden 64 --latent 16 --decoder
 /// 64,96`): timed when named, not in the default list.
@@ -57,13 +64,13 @@ fn cpu_model_name(info: &str) -> Option<&str> {
 }
 
 /// The models `bench-train` times: every model of [`crate::model::MODELS`],
-/// then [`CONDITIONED`] and [`DEFAULT`].
+/// then [`CONDITIONED`], [`DEFAULT`] and [`LATE`].
 pub fn bench_models() -> Vec<String> {
     let mut v: Vec<String> = crate::model::MODELS
         .iter()
         .map(|m| m.0.to_string())
         .collect();
-    v.extend([CONDITIONED.to_string(), DEFAULT.to_string()]);
+    v.extend([CONDITIONED, DEFAULT, LATE].map(String::from));
     v
 }
 
@@ -80,10 +87,14 @@ fn bench_config(name: &str) -> Option<Config> {
     if name == WIDE {
         return bench_config(DEFAULT).map(Config::widened);
     }
-    if name == CONDITIONED || name == DEFAULT {
+    if name == CONDITIONED || name == DEFAULT || name == LATE {
         let mut c = Config::named(crate::model::DEFAULT_MODEL)?;
-        if name == DEFAULT {
-            c = crate::options::Preset::Minute.for_model(c).model;
+        if name != CONDITIONED {
+            let minute = crate::options::Preset::Minute.for_model(c);
+            c = match name == LATE {
+                true => minute.late_model(minute.epochs - 1)?,
+                false => minute.model,
+            };
         }
         c.categories = mocap_ingest::category::Category::ALL
             .iter()
@@ -519,6 +530,20 @@ mod tests {
         assert_eq!(cpu_model_name(info), Some("Intel(R) Xeon(R) Processor"));
         assert_eq!(cpu_model_name("processor : 0\nmodel : 167\n"), None);
         assert!(cpu_description().contains("; products in "));
+    }
+
+    #[test]
+    fn the_late_epochs_are_timed_as_the_default_training_runs_them() {
+        let (d, l) = (bench_config(DEFAULT).unwrap(), bench_config(LATE).unwrap());
+        assert!(bench_models().ends_with(&[DEFAULT.to_string(), LATE.to_string()]));
+        assert!(l.parts.rollout_gradient && !d.parts.rollout_gradient);
+        assert_eq!(l.parts.root_weight, Some(8.0));
+        assert!(l.parts.fed_speed.is_some());
+        let mut back = l.clone();
+        back.parts.rollout_gradient = false;
+        back.parts.root_weight = None;
+        back.parts.fed_speed = d.parts.fed_speed;
+        assert_eq!(back, d, "nothing else differs");
     }
 
     #[test]

@@ -19,7 +19,10 @@ pub enum Preset {
     /// 14 stretches every 10 epochs (`docs/training.md`, "The judge and the
     /// minute"), from the best of 3 initialisations after 20 epochs, with
     /// a wider extractor and decoder ([`MINUTE_EXTRACTOR`],
-    /// [`MINUTE_DECODER`]).
+    /// [`MINUTE_DECODER`]), every epoch trained (no early stopping), the
+    /// last [`MINUTE_LATE`] through the rollout with the root's motion
+    /// weighed [`MINUTE_LATE_ROOT_WEIGHT`] (`docs/training.md`, "The root
+    /// weighed in the late epochs only").
     Minute,
 }
 
@@ -30,6 +33,17 @@ pub const MINUTE_EXTRACTOR: [usize; 2] = [64, 32];
 
 /// The `minute` preset's decoder sizes: the paper's 32, 48 doubled.
 pub const MINUTE_DECODER: [usize; 2] = [64, 96];
+
+/// The `minute` preset's last epochs through the rollout
+/// (`--rollout-last`; [`TrainConfig::rollout_last`]): the second half of
+/// its 400.
+pub const MINUTE_LATE: usize = 200;
+
+/// The root's weight in the `minute` preset's late epochs
+/// (`--late-root-weight`; [`TrainConfig::late_root_weight`]): chosen on
+/// `val` over 4, 8 and 12 (`docs/training.md`, "The root weighed in the
+/// late epochs only").
+pub const MINUTE_LATE_ROOT_WEIGHT: f64 = 8.0;
 
 impl Preset {
     /// The preset's configuration (its model: the default model), before
@@ -55,6 +69,9 @@ impl Preset {
                 inits: Some(3),
                 extractor: Some(MINUTE_EXTRACTOR),
                 decoder: Some(MINUTE_DECODER),
+                early_stopping: Some(0),
+                rollout_last: Some(MINUTE_LATE),
+                late_root_weight: Some(MINUTE_LATE_ROOT_WEIGHT),
                 ..Overrides::default()
             },
             _ => Overrides::default(),
@@ -543,7 +560,8 @@ mod tests {
         let minute = Preset::Minute.for_model(motion());
         // The same as `--feed-rounds 0 --rollouts-at-temperature --condition
         // category+pace --judge-stretches 14 --judge-every 10 --inits 3
-        // --extractor 64,32 --decoder 64,96` on `standard`.
+        // --extractor 64,32 --decoder 64,96 --early-stopping 0
+        // --rollout-last 200 --late-root-weight 8` on `standard`.
         let mut flags = TrainConfig::standard();
         flags.model = motion();
         Overrides {
@@ -555,10 +573,21 @@ mod tests {
             inits: Some(3),
             extractor: Some([64, 32]),
             decoder: Some([64, 96]),
+            early_stopping: Some(0),
+            rollout_last: Some(200),
+            late_root_weight: Some(8.0),
             ..Default::default()
         }
         .apply(&mut flags);
         assert_eq!(minute, flags);
+        // Every epoch trained, the second half through the rollout with the
+        // root weighed 8; the epochs before and the run's model as they were.
+        assert_eq!(minute.early_stopping, None);
+        assert_eq!(minute.late_model(199), None);
+        let late = minute.late_model(200).unwrap_or_default();
+        assert_eq!(late.parts.root_weight, Some(8.0));
+        assert!(late.parts.rollout_gradient);
+        assert_eq!(minute.model.parts.root_weight, None);
         assert_eq!(
             (
                 minute.model.extractor,
@@ -644,13 +673,15 @@ mod tests {
         assert_eq!(
             minute.extras(),
             " conditioned on the category and its pace (--condition none: neither), \
-             fed back to every depth at the sampling temperature, judged over 14 stretches, \
-             from the best of 3 initialisations after 20 epochs"
+             fed back to every depth at the sampling temperature, the last 200 epochs \
+             through the rollout with the fed speed loss and the root's motion weighed 8, \
+             judged over 14 stretches, from the best of 3 initialisations after 20 epochs"
         );
         assert_eq!(
             none.extras(),
-            ", fed back to every depth at the sampling temperature, judged over 14 stretches, \
-             from the best of 3 initialisations after 20 epochs"
+            ", fed back to every depth at the sampling temperature, the last 200 epochs \
+             through the rollout with the fed speed loss and the root's motion weighed 8, \
+             judged over 14 stretches, from the best of 3 initialisations after 20 epochs"
         );
         assert_eq!(
             TrainConfig::standard().extras(),
