@@ -116,7 +116,7 @@ pub struct TrainArgs {
     /// Also train on the windows' left-right mirror images, each window mirrored every other epoch (measured, not adopted; docs/training.md).
     #[arg(long)]
     pub mirror: bool,
-    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; `minute`: 200, every epoch when there are fewer; 0: none; a late step costs about 1.65×; docs/training.md).
+    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; `minute`: 200, every epoch when there are fewer; 0: none; a late step costs 1.4–1.6× an early one; docs/training.md).
     #[arg(long, value_name = "N")]
     pub rollout_last: Option<usize>,
     /// Weight of the root's motion in the squared error in those last N epochs only (`minute`: 8; 1: the ELBO's; needs late epochs; docs/training.md).

@@ -79,11 +79,19 @@ impl Preset {
     }
 
     /// The preset for `model`: [`Preset::config`] with `model` in place of
-    /// its own, then [`Preset::overrides`].
+    /// its own, then [`Preset::overrides`]. The late epochs through the
+    /// rollout (and with them the end of early stopping) only for a model
+    /// that feeds its frames back to a skeleton, the one kind they can
+    /// train ([`TrainConfig::late_model`]); any other keeps `standard`'s.
     pub fn for_model(self, model: crate::model::Config) -> TrainConfig {
         let mut cfg = self.config();
         cfg.model = model;
-        self.overrides().apply(&mut cfg);
+        let mut o = self.overrides();
+        let parts = &cfg.model.parts;
+        if !(parts.skeleton && parts.self_feed > 0.0) {
+            (o.early_stopping, o.rollout_last, o.late_root_weight) = (None, None, None);
+        }
+        o.apply(&mut cfg);
         cfg
     }
 }
@@ -639,10 +647,17 @@ mod tests {
             still.model.parts.contact_speed,
             minute.model.parts.contact_speed
         );
-        // Still named as its model, for every model (the checkpoint's name).
+        // Still named as its model, for every model (the checkpoint's name);
+        // the late epochs only where the frames are fed back to a skeleton
+        // (`motion`), the others stopping early as `standard` does.
         for (name, _) in crate::model::MODELS {
             let c = crate::model::Config::named(name).unwrap_or_default();
-            assert_eq!(Preset::Minute.for_model(c).model.name(), Some(name));
+            let cfg = Preset::Minute.for_model(c);
+            assert_eq!(cfg.model.name(), Some(name));
+            let late = (name == "motion").then_some(200);
+            assert_eq!(cfg.rollout_last, late, "{name}");
+            let stops = TrainConfig::standard().early_stopping;
+            assert_eq!(cfg.early_stopping, late.map_or(stops, |_| None), "{name}");
         }
         assert_eq!(minute.judge_stretches, Some(14));
         assert_eq!(minute.select, Select::Generation { every: 10 });
