@@ -83,10 +83,11 @@ fn the_weights_average_resumes_exactly() {
     kill_and_resume(&["--average", "0.9"]);
 }
 
-/// `--rollout-last 8` trains the first 7 epochs as the plain run does and
-/// the last 8 otherwise (the gradient through the fed frames and the fed
-/// speed loss), and a run killed on either side of the switch resumes
-/// exactly.
+/// `--rollout-last 8` trains the first 7 epochs as the plain run
+/// (`--rollout-last 0`) does and the last 8 otherwise (the gradient through
+/// the fed frames, the fed speed loss and the preset's root weight), and a
+/// run killed on either side of the switch resumes exactly. (Without the
+/// option every one of these 15 epochs is a late one: the preset's 200.)
 #[test]
 fn the_late_rollout_starts_on_time_and_resumes_exactly() {
     integration_tests::require_samples!();
@@ -94,7 +95,8 @@ fn the_late_rollout_starts_on_time_and_resumes_exactly() {
     let (tmp, ds, late) = kill_and_resume(&["--rollout-last", "8", "--inits", "1"]);
     let plain = tmp.path().join("plain");
     let mut c = train_cmd(&ds, &plain);
-    assert!(c.args(["--inits", "1"]).status().unwrap().success());
+    let off = ["--inits", "1", "--rollout-last", "0"];
+    assert!(c.args(off).status().unwrap().success());
     let plain = metrics(&plain);
     assert_eq!(
         late[..7],

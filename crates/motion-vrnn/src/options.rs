@@ -365,6 +365,11 @@ impl Overrides {
         }
         if let Some(v) = self.rollout_last {
             cfg.rollout_last = (v > 0).then_some(v);
+            if v == 0 {
+                // No late epochs: nothing to weigh the root in either
+                // (unless asked for below, which training refuses).
+                cfg.late_root_weight = None;
+            }
         }
         if let Some(v) = self.late_root_weight {
             cfg.late_root_weight = (v != 1.0).then_some(v);
@@ -596,6 +601,14 @@ mod tests {
         assert_eq!(late.parts.root_weight, Some(8.0));
         assert!(late.parts.rollout_gradient);
         assert_eq!(minute.model.parts.root_weight, None);
+        // `--rollout-last 0` turns the late epochs off, their weight with them.
+        let mut off = minute.clone();
+        Overrides {
+            rollout_last: Some(0),
+            ..Default::default()
+        }
+        .apply(&mut off);
+        assert_eq!((off.rollout_last, off.late_root_weight), (None, None));
         assert_eq!(
             (
                 minute.model.extractor,
