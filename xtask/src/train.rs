@@ -84,12 +84,13 @@ pub struct TrainArgs {
     /// Starting point for every option below (docs/training.md, "Presets").
     /// `minute`: `standard` with --feed-rounds 0 --rollouts-at-temperature
     /// --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3
-    /// --extractor 64,32 --decoder 64,96;
+    /// --extractor 64,32 --decoder 64,96 --epochs 600 --early-stopping 0
+    /// --rollout-last 300 --late-root-weight 8 (the last four for `motion`);
     /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
     /// stopping 60; `quick`: 30 epochs; `paper`: the paper (batch 1,600).
     #[arg(long, default_value = "minute")]
     pub preset: Preset,
-    /// Epochs.
+    /// Epochs (`minute`: 600 for `motion`, 400 for the others; `standard`: 400).
     #[arg(long)]
     pub epochs: Option<usize>,
     /// Windows per step.
@@ -116,7 +117,7 @@ pub struct TrainArgs {
     /// Also train on the windows' left-right mirror images, each window mirrored every other epoch (measured, not adopted; docs/training.md).
     #[arg(long)]
     pub mirror: bool,
-    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; `minute`: 200, every epoch when there are fewer; 0: none; a late step costs 1.4–1.6× an early one; docs/training.md).
+    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; `minute`: 300, every epoch when there are fewer; 0: none; a late step costs 1.4–1.6× an early one; docs/training.md).
     #[arg(long, value_name = "N")]
     pub rollout_last: Option<usize>,
     /// Weight of the root's motion in the squared error in those last N epochs only (`minute`: 8; 1: the ELBO's; needs late epochs; docs/training.md).

@@ -59,7 +59,7 @@ const CONDITIONED_WHAT: &str = "`motion` trained with `--preset standard` (condi
 pub const MINUTE: &str = "motion-minute";
 
 /// What [`MINUTE`] is, on the results page.
-const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--feed-rounds 0 --rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96 --early-stopping 0 --rollout-last 200 --late-root-weight 8`), asked as `motion-category` is and for its window's pace, held to that pace run by run (`--pace-gain`, 0.5) and each run chosen among 8 draws by its context's mean pose (`--draws`): **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\", \"A wider extractor and decoder\", \"Chosen among draws\", \"Holding the pace, run by run\", \"The root weighed in the late epochs only\")";
+const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` with `--feed-rounds 0 --rollouts-at-temperature --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96 --epochs 600 --early-stopping 0 --rollout-last 300 --late-root-weight 8`), asked as `motion-category` is and for its window's pace, held to that pace run by run (`--pace-gain`, 0.5) and each run chosen among 8 draws by its context's mean pose (`--draws`): **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\", \"A wider extractor and decoder\", \"Chosen among draws\", \"Holding the pace, run by run\", \"The root weighed in the late epochs only\", \"Longer: 600 epochs\")";
 
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
