@@ -26,9 +26,10 @@ pub const CONDITIONED: &str = "motion+category";
 pub const DEFAULT: &str = "minute";
 
 /// The bench's name for a step of the default training's late epochs
-/// ([`crate::options::MINUTE_LATE`] of its [`crate::options::MINUTE_EPOCHS`]): [`DEFAULT`] with the
-/// gradient through the fed-back frames, the fed speed loss and the root
-/// weighed [`crate::options::MINUTE_LATE_ROOT_WEIGHT`]
+/// ([`crate::options::MINUTE_LATE`] of its
+/// [`crate::options::MINUTE_EPOCHS`]): [`DEFAULT`] with the gradient
+/// through the fed-back frames, the fed speed loss and the root weighed
+/// [`crate::options::MINUTE_LATE_ROOT_WEIGHT`]
 /// ([`crate::train::TrainConfig::late_model`]).
 pub const LATE: &str = "minute-late";
 

@@ -20,9 +20,10 @@ pub enum Preset {
     /// minute"), from the best of 3 initialisations after 20 epochs, with
     /// a wider extractor and decoder ([`MINUTE_EXTRACTOR`],
     /// [`MINUTE_DECODER`]), [`MINUTE_EPOCHS`] epochs, every one trained (no
-    /// early stopping), the last [`MINUTE_LATE`] through the rollout with the root's motion
-    /// weighed [`MINUTE_LATE_ROOT_WEIGHT`] (`docs/training.md`, "The root
-    /// weighed in the late epochs only").
+    /// early stopping), the last [`MINUTE_LATE`] through the rollout with
+    /// the root's motion weighed [`MINUTE_LATE_ROOT_WEIGHT`]
+    /// (`docs/training.md`, "The root weighed in the late epochs only",
+    /// "Longer: 600 epochs").
     Minute,
 }
 
@@ -88,9 +89,9 @@ impl Preset {
     /// The preset for `model`: [`Preset::config`] with `model` in place of
     /// its own, then [`Preset::overrides`]. The late epochs through the
     /// rollout (and with them the longer run and the end of early
-    /// stopping) only for a model
-    /// that feeds its frames back to a skeleton, the one kind they can
-    /// train ([`TrainConfig::late_model`]); any other keeps `standard`'s.
+    /// stopping) only for a model that feeds its frames back to a skeleton,
+    /// the one kind they can train ([`TrainConfig::late_model`]); any other
+    /// keeps `standard`'s.
     pub fn for_model(self, model: crate::model::Config) -> TrainConfig {
         let mut cfg = self.config();
         cfg.model = model;
