@@ -848,6 +848,28 @@ fn a_paced_run_samples_evaluates_and_continues() {
         "s",
     );
     ok(&["eval", "--horizon", "0", "--split", "val"], "e");
+    // The report says what guidance its motions asked at; none where they
+    // asked for no category.
+    let report = |out: &str| -> serde_json::Value {
+        let text = std::fs::read_to_string(tmp.path().join(out).join("eval.json")).unwrap();
+        serde_json::from_str(&text).unwrap()
+    };
+    assert_eq!(report("e")["guidance"], 1.4);
+    let md = std::fs::read_to_string(tmp.path().join("e/eval.md")).unwrap();
+    assert!(md.contains("asked at guidance 1.4"), "{md}");
+    ok(
+        &[
+            "eval",
+            "--horizon",
+            "0",
+            "--split",
+            "val",
+            "--category",
+            "none",
+        ],
+        "e-none",
+    );
+    assert!(report("e-none").get("guidance").is_none());
     let clip = extract(
         "cmu-bvh-sample.zip",
         "cmu-bvh-motionbuilder/02/02_01.bvh",

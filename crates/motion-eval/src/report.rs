@@ -49,6 +49,11 @@ pub struct EvalReport {
     /// Sampling temperature of the generated motions (1: the prior as is).
     #[serde(default = "one")]
     pub temperature: f64,
+    /// The guidance scale the generated motions asked their category at
+    /// (`--guidance`; absent: they asked for none, or a report written
+    /// before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guidance: Option<f64>,
     /// The gain the generated motions were held to their asked pace with
     /// ([`motion_vrnn::generate::PACE_GAIN`]; absent: not held, or a report
     /// written before 4-second motions were).
@@ -192,6 +197,7 @@ pub fn report(
         context: a.context,
         contexts,
         temperature: m.model.model.config().parts.temperature.unwrap_or(1.0),
+        guidance: m.guidance(),
         pace_gain: held.map(|h| h.0),
         draws: held.map(|h| h.1),
         pin_feet: a.pin_feet,
@@ -233,8 +239,10 @@ pub fn report(
 /// `eval.md`: the report as a Markdown page.
 pub fn markdown(r: &EvalReport) -> String {
     let mut s = format!(
-        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}, temperature {}), each continuing the first {} frames of {}.{}\n\n",
-        r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed, r.temperature, r.context,
+        "# Evaluation of {} ({}, epoch {})\n\nDataset {}, split `{}`: {} windows of {} frames; {} generated motions of {} frames (seed {}, temperature {}{}), each continuing the first {} frames of {}.{}\n\n",
+        r.run, r.checkpoint, r.epoch, r.dataset, r.split, r.windows, r.frames, r.windows, r.frames, r.seed, r.temperature,
+        r.guidance.map(|g| format!(", asked at guidance {g}")).unwrap_or_default(),
+        r.context,
         match r.contexts {
             Contexts::Split => format!("one `{}` window (every window once)", r.split),
             Contexts::Train => "a random training window".to_string(),

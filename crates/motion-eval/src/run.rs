@@ -243,6 +243,16 @@ impl Run {
             .map(|g| (g, self.draws))
     }
 
+    /// The guidance scale generated motions ask their category at (None:
+    /// they ask for none).
+    pub fn guidance(&self) -> Option<f64> {
+        match self.ask {
+            Asking::Nothing => None,
+            Asking::One(_, ask) => Some(ask.guidance),
+            Asking::Own(g) => Some(g),
+        }
+    }
+
     /// The windows of split `name`, or an error when it has none.
     pub fn split(&self, name: &str) -> Result<&Windows, EvalError> {
         self.labelled(name).map(|s| s.0)
