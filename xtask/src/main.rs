@@ -52,6 +52,9 @@ enum Command {
     Compare(compare::CompareArgs),
     /// Benchmark a training step at given batch sizes, and sampling.
     BenchTrain(train::BenchArgs),
+    /// Benchmark sampling: frames per second of a run's default sampler and
+    /// of the model alone (one draw, the pace not held).
+    BenchSample(motion::BenchSampleArgs),
     /// Train the motion classifier on a dataset's train windows and print
     /// its accuracy, diversity, multimodality and Fréchet distance.
     TrainClassifier(train::ClassifierArgs),
@@ -122,6 +125,7 @@ fn main() -> Result<()> {
         Command::Audit(args) => audit::run(args),
         Command::Compare(args) => compare::run(args),
         Command::BenchTrain(args) => train::bench(args),
+        Command::BenchSample(args) => motion::bench_sample(args),
         Command::TrainClassifier(args) => train::classifier(args),
         Command::BenchDataset {
             sources,

@@ -376,3 +376,44 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
     }
     Ok(())
 }
+
+/// `cargo xtask bench-sample` options.
+#[derive(Args, Debug)]
+pub struct BenchSampleArgs {
+    #[command(flatten)]
+    pub run: RunArgs,
+    /// Motions generated at once.
+    #[arg(long, default_value_t = 64)]
+    pub n: usize,
+    /// Frames per motion (30 fps; 1800: a minute).
+    #[arg(long, default_value_t = 1800)]
+    pub frames: usize,
+    /// Runs of each sampler; the fastest is reported.
+    #[arg(long, default_value_t = 1)]
+    pub repeat: usize,
+}
+
+/// `cargo xtask bench-sample`: frames per second of the run's sampler and
+/// of the model alone.
+pub fn bench_sample(a: BenchSampleArgs) -> Result<()> {
+    let spec = a.run.spec();
+    let mut run = motion_eval::run::Run::load(&spec, &["train"])
+        .with_context(|| format!("loading the run {}", spec.run.display()))?;
+    println!(
+        "{} motions of {} frames from training contexts, {} thread(s), {}",
+        a.n,
+        a.frames,
+        rayon::current_num_threads(),
+        motion_vrnn::bench::cpu_description()
+    );
+    let t = motion_eval::speed::time_sampling(
+        &mut run,
+        a.n,
+        a.frames,
+        spec.context,
+        spec.seed,
+        a.repeat,
+    )?;
+    print!("{}", motion_eval::speed::markdown(&t));
+    Ok(())
+}

@@ -132,7 +132,7 @@ pub struct TrainArgs {
     /// Early-stopping patience in epochs (0: off).
     #[arg(long)]
     pub early_stopping: Option<usize>,
-    /// How `best` is chosen: `generation` (motions generated every --judge-every epochs, measured against the validation windows) or `loss` (lowest validation loss; the paper preset's choice).
+    /// How `best` is chosen: `generation` (every --judge-every epochs, 200 motions continuing 16 frames of training windows, one draw at guidance 1, measured on their first and last stretch against the training windows; the validation windows give the Fréchet reference) or `loss` (lowest validation loss; the paper preset's).
     #[arg(long)]
     pub select: Option<SelectBy>,
     /// Epochs between two judgements of generated motion (--select generation).

@@ -884,3 +884,54 @@ fn a_paced_run_samples_evaluates_and_continues() {
     let e = String::from_utf8_lossy(&e.stderr);
     assert!(e.contains("category+pace"), "{e}");
 }
+
+/// Choices made on `val` never read `test`: `eval --split val` measures its
+/// minute against the train and val windows alone, `--split test` (the
+/// report) against every split.
+#[test]
+fn val_references_never_read_a_test_window() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = tmp.path().join("ds");
+    let ok = xtask()
+        .args(["dataset", "--quiet", "--window", "32", "--stride", "16"])
+        .args(["--split", "0.4,0.3,0.3", "--source"])
+        .arg(six_takes(tmp.path()))
+        .arg("--out")
+        .arg(&ds)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ds.join("manifest.json")).unwrap()).unwrap();
+    let windows = |s: &str| manifest["counts"]["windows_per_split"][s].as_u64().unwrap();
+    let (train_n, val_n, test_n) = (windows("train"), windows("val"), windows("test"));
+    assert!(train_n > 0 && val_n > 0 && test_n > 0, "{manifest}");
+    let run = tmp.path().join("run");
+    train(&ds, &run, &[]);
+    let real_windows = |split: &str| {
+        let out = tmp.path().join(format!("e-{split}"));
+        let o = xtask()
+            .args([
+                "eval",
+                "--split",
+                split,
+                "--horizon",
+                "3",
+                "--horizon-motions",
+                "4",
+            ])
+            .arg("--run")
+            .arg(&run)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap();
+        j["horizon"]["real_windows"].as_u64().unwrap()
+    };
+    assert_eq!(real_windows("val"), train_n + val_n);
+    assert_eq!(real_windows("test"), train_n + val_n + test_n);
+}

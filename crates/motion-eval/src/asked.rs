@@ -205,10 +205,10 @@ pub struct AskedSet {
     pub stride_separation: Option<Separation>,
 }
 
-/// Every real window of the run's splits (in [`crate::horizon::SPLITS`]
-/// order) in global positions with its label, and what the classifier made
-/// of each split: computed once, read by [`crate::recognition`] and
-/// [`ask_each`].
+/// Every real window of the reference splits of an evaluated split
+/// ([`crate::horizon::reference_splits`], in that order) in global positions
+/// with its label, and what the classifier made of each split: computed
+/// once, read by [`crate::recognition`] and [`ask_each`].
 pub struct RealSeen<'a> {
     /// `(split, outputs, labels)`.
     pub splits: Vec<(&'static str, Outputs, &'a [Category])>,
@@ -219,14 +219,15 @@ pub struct RealSeen<'a> {
 }
 
 impl<'a> RealSeen<'a> {
-    /// The real windows of `m` seen by the classifier `c`.
-    pub fn of(m: &'a Run, c: &Classifier) -> Result<Self, EvalError> {
+    /// The real windows of `m` that an evaluation of `split` compares with,
+    /// seen by the classifier `c`.
+    pub fn of(m: &'a Run, c: &Classifier, split: &str) -> Result<Self, EvalError> {
         let mut seen = RealSeen {
             splits: Vec::new(),
             poses: Vec::new(),
             labels: Vec::new(),
         };
-        for split in crate::horizon::SPLITS {
+        for &split in crate::horizon::reference_splits(split) {
             if let Some((w, labels)) = m.data.split(split) {
                 seen.splits.push((split, c.outputs(w, &m.device)?, labels));
                 let windows = generate::windows_of(w);
@@ -271,71 +272,23 @@ pub fn ask_each(
         return Ok(None);
     }
     let train = m.split("train")?;
-    let (len, f) = (train.length, train.features);
+    let f = train.features;
     let opts = Options::default();
     let global = |x: &Vec<f32>| m.generated_poses(x);
-    let real_of = |c: Category| -> Vec<Vec<Pose>> {
-        seen.poses
-            .iter()
-            .zip(&seen.labels)
-            .filter(|(_, &l)| l == c)
-            .map(|(p, _)| p.clone())
-            .collect()
-    };
-    let count = |split: &str, c: Category| {
-        m.data
-            .categories
-            .get(split)
-            .map_or(0, |l| l.iter().filter(|&&x| x == c).count())
-    };
     let (mut out, mut all_gen, mut all_feat, mut all_labels, mut draws) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for (row, name) in config.categories.iter().enumerate() {
         let cat: Category = name.parse().map_err(EvalError::Invalid)?;
-        // Contexts of the category, asked for it at `guidance` (0: none).
-        let asked = |guidance: f64| {
-            let ask = Ask {
-                row: row + 1,
-                guidance,
-            };
-            let n = PER_CATEGORY;
-            m.sample_asked(Asking::One(cat, ask), n, len, spec.context, spec.seed)
-        };
-        // The same contexts and noise, with the category and without.
-        let (gen, unasked) = (asked(spec.guidance)?, asked(0.0)?);
-        let seen_by = |set: &[Vec<f32>]| c.outputs(&as_windows(set, len, f), &m.device);
-        let (go, uo) = (seen_by(&gen)?, seen_by(&unasked)?);
-        let (gp, up) = (go.predicted(), uo.predicted());
-        let test_f = seen.features(&spec.split, cat);
-        let real_accuracy = seen
-            .split(&spec.split)
-            .and_then(|(_, o, l)| classifier::accuracy(&o.predicted(), l).of(cat));
-        let two = |v: &[Vec<f32>]| (v.len() >= 2).then_some(());
-        let real = real_of(cat);
-        let gen_poses: Vec<Vec<Pose>> = gen.iter().map(global).collect();
-        let un_poses: Vec<Vec<Pose>> = unasked.iter().map(global).collect();
-        let missing = || EvalError::Invalid(format!("no windows of {cat}"));
-        let d = spread(&real, spec.seed);
-        out.push(Asked {
-            category: cat.name().to_string(),
-            train_windows: count("train", cat),
-            split_windows: count(&spec.split, cat),
-            real_accuracy,
-            accuracy: share_of(&gp, cat),
-            accuracy_unasked: share_of(&up, cat),
-            frechet: two(&test_f).map(|_| classifier::feature_frechet(&go.features, &test_f)),
-            frechet_reference: two(&test_f)
-                .map(|_| classifier::feature_frechet(&seen.features("train", cat), &test_f)),
-            real: plain(&real).ok_or_else(missing)?,
-            generated: plain(&gen_poses).ok_or_else(missing)?,
-            unasked: plain(&un_poses).ok_or_else(missing)?,
-            real_spread: [d.range(|s| s.root_speed_m_s), d.range(|s| s.contact_share)],
-            stride_spread: Some(d.range(|s| s.stride_m)),
-            taken_for: taken_for(&gp, cat),
-        });
+        let One {
+            asked,
+            draws: d,
+            generated: gen,
+            features,
+        } = ask_one(m, spec, c, seen, row + 1, cat)?;
+        out.push(asked);
         draws.push(d);
         all_labels.extend(std::iter::repeat_n(cat, gen.len()));
-        all_feat.extend(go.features);
+        all_feat.extend(features);
         all_gen.extend(gen);
     }
     let kept: Vec<(&Asked, &Draws)> = out
@@ -373,6 +326,89 @@ pub fn ask_each(
         speed_separation,
         stride_separation,
     }))
+}
+
+/// One category asked of a conditioned run: its measures, the draws of its
+/// real windows, the motions asked for it and their classifier features.
+struct One {
+    asked: Asked,
+    draws: Draws,
+    generated: Vec<Vec<f32>>,
+    features: Vec<Vec<f32>>,
+}
+
+/// Ask `m` for the category `cat` (condition-table `row`) from training
+/// contexts of it, beside the same contexts and noise asked for none, and
+/// measure both with the classifier `c` and against `seen`'s real windows.
+fn ask_one(
+    m: &Run,
+    spec: &RunSpec,
+    c: &Classifier,
+    seen: &RealSeen,
+    row: usize,
+    cat: Category,
+) -> Result<One, EvalError> {
+    let train = m.split("train")?;
+    let (len, f) = (train.length, train.features);
+    let global = |x: &Vec<f32>| m.generated_poses(x);
+    let real_of = |c: Category| -> Vec<Vec<Pose>> {
+        seen.poses
+            .iter()
+            .zip(&seen.labels)
+            .filter(|(_, &l)| l == c)
+            .map(|(p, _)| p.clone())
+            .collect()
+    };
+    let count = |split: &str, c: Category| {
+        m.data
+            .categories
+            .get(split)
+            .map_or(0, |l| l.iter().filter(|&&x| x == c).count())
+    };
+    // Contexts of the category, asked for it at `guidance` (0: none).
+    let asked = |guidance: f64| {
+        let ask = Ask { row, guidance };
+        let n = PER_CATEGORY;
+        m.sample_asked(Asking::One(cat, ask), n, len, spec.context, spec.seed)
+    };
+    // The same contexts and noise, with the category and without.
+    let (gen, unasked) = (asked(spec.guidance)?, asked(0.0)?);
+    let seen_by = |set: &[Vec<f32>]| c.outputs(&as_windows(set, len, f), &m.device);
+    let (go, uo) = (seen_by(&gen)?, seen_by(&unasked)?);
+    let (gp, up) = (go.predicted(), uo.predicted());
+    let test_f = seen.features(&spec.split, cat);
+    let real_accuracy = seen
+        .split(&spec.split)
+        .and_then(|(_, o, l)| classifier::accuracy(&o.predicted(), l).of(cat));
+    let two = |v: &[Vec<f32>]| (v.len() >= 2).then_some(());
+    let real = real_of(cat);
+    let gen_poses: Vec<Vec<Pose>> = gen.iter().map(global).collect();
+    let un_poses: Vec<Vec<Pose>> = unasked.iter().map(global).collect();
+    let missing = || EvalError::Invalid(format!("no windows of {cat}"));
+    let d = spread(&real, spec.seed);
+    let asked = Asked {
+        category: cat.name().to_string(),
+        train_windows: count("train", cat),
+        split_windows: count(&spec.split, cat),
+        real_accuracy,
+        accuracy: share_of(&gp, cat),
+        accuracy_unasked: share_of(&up, cat),
+        frechet: two(&test_f).map(|_| classifier::feature_frechet(&go.features, &test_f)),
+        frechet_reference: two(&test_f)
+            .map(|_| classifier::feature_frechet(&seen.features("train", cat), &test_f)),
+        real: plain(&real).ok_or_else(missing)?,
+        generated: plain(&gen_poses).ok_or_else(missing)?,
+        unasked: plain(&un_poses).ok_or_else(missing)?,
+        real_spread: [d.range(|s| s.root_speed_m_s), d.range(|s| s.contact_share)],
+        stride_spread: Some(d.range(|s| s.stride_m)),
+        taken_for: taken_for(&gp, cat),
+    };
+    Ok(One {
+        asked,
+        draws: d,
+        generated: gen,
+        features: go.features,
+    })
 }
 
 /// Share of `predicted` that is `c` (0 when empty).
@@ -617,12 +653,13 @@ pub fn markdown(a: &AskedSet) -> String {
     s
 }
 
-/// Load the run of `spec` with every split and the classifier in `dir`,
-/// and ask the run's model for each of its categories.
+/// Load the run of `spec` with the reference splits of its split
+/// ([`crate::horizon::reference_splits`]) and the classifier in `dir`, and
+/// ask the run's model for each of its categories.
 pub fn evaluate(spec: &RunSpec, dir: &std::path::Path) -> Result<AskedSet, EvalError> {
-    let m = Run::load(spec, &crate::horizon::SPLITS)?;
+    let m = Run::load(spec, crate::horizon::reference_splits(&spec.split))?;
     let (c, _) = Classifier::load(dir, &m.device)?;
-    let seen = RealSeen::of(&m, &c)?;
+    let seen = RealSeen::of(&m, &c, &spec.split)?;
     ask_each(&m, spec, &c, &seen)?.ok_or_else(|| {
         EvalError::Invalid(format!(
             "{}: the model was trained without categories (train it with --condition category)",
@@ -646,6 +683,72 @@ fn mean_taken(each: &[&Asked]) -> Vec<(String, f64)> {
     })
 }
 
+/// The row of the category `c` (the `k`-th) of the results page's section:
+/// mean ± std over the seeds' runs, the goals missed on the mean, the seeds
+/// that miss.
+fn category_row(runs: &[(u64, AskedSet)], k: usize, c: &Asked) -> String {
+    let ms = |v: Vec<f64>, p: usize| {
+        let (m, s) = crate::mean_std(&v);
+        format!("{m:.p$} ± {s:.p$}")
+    };
+    let each: Vec<&Asked> = runs.iter().filter_map(|r| r.1.categories.get(k)).collect();
+    let pct = |f: fn(&Asked) -> f64| ms(each.iter().map(|a| 100.0 * f(a)).collect(), 0);
+    let ratio = |f: fn(&Plain) -> f64| {
+        ms(
+            each.iter().map(|a| f(&a.generated) / f(&a.real)).collect(),
+            2,
+        )
+    };
+    // Reports written before the stride have none: n/a, not NaN.
+    let stride = if each.iter().any(|a| a.real.stride_m <= 0.0) {
+        "n/a".to_string()
+    } else {
+        format!("{} {}", ratio(|p| p.stride_m), bracket(c.stride_spread))
+    };
+    // The goals on the mean over the seeds.
+    let mean =
+        |f: fn(&Asked) -> f64| crate::mean_of(&each.iter().map(|a| f(a)).collect::<Vec<_>>());
+    let mut avg = c.clone();
+    avg.accuracy = mean(|a| a.accuracy);
+    avg.generated.speed_m_s = mean(|a| a.generated.speed_m_s);
+    avg.generated.contact = mean(|a| a.generated.contact);
+    let missed = match (c.in_goals(), avg.misses()) {
+        (false, _) => "(too few training windows)".to_string(),
+        (true, m) if m.is_empty() => "none".into(),
+        (true, m) => m.join(", "),
+    };
+    let seeds: Vec<String> = runs
+        .iter()
+        .filter_map(|(seed, a)| {
+            let m = a.categories.get(k)?.misses();
+            (c.in_goals() && !m.is_empty()).then(|| format!("{seed} ({})", m.join(", ")))
+        })
+        .collect();
+    let spread = |i: usize| bracket(Some(c.real_spread[i]));
+    format!(
+        "| {} | {} / {} | {} | {} | {} | {} | {} {} | {} {} | {} | {} | {} |\n",
+        c.category,
+        c.train_windows,
+        c.split_windows,
+        c.real_accuracy
+            .map_or("n/a".into(), |a| format!("{:.0} %", 100.0 * a)),
+        pct(|a| a.accuracy),
+        pct(|a| a.accuracy_unasked),
+        taken_text(&mean_taken(&each), 2),
+        ratio(|p| p.speed_m_s),
+        spread(0),
+        ratio(|p| p.contact),
+        spread(1),
+        stride,
+        missed,
+        if seeds.is_empty() {
+            "–".into()
+        } else {
+            seeds.join("; ")
+        }
+    )
+}
+
 /// The results page's section: every category asked of the seeds' runs
 /// (`(seed, asked)`), mean ± std over the seeds, the goals met on the mean
 /// and the seeds that miss.
@@ -664,7 +767,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
          ({} motions each, each continuing a training window of that category, guidance {}) and the motion \
          classifier (`train-classifier`, seed 0) says what it got; \"unasked\" continues the same contexts with \
          the same noise and no category (what the contexts alone give). Speed and contact are generated ÷ the \
-         real windows of the category (all splits), with the range of draws of half those real windows in \
+         real windows of the category (every split for a report on `test`; `train` and `val` otherwise), with the range of draws of half those real windows in \
          brackets; stride (how far the toes swing past each other, [metrics.md](metrics.md)) is a diagnostic \
          beside them; \"taken for\": the categories the classifier puts the other asked motions in (the \
          two largest shares, mean over the seeds). Goals for categories with at least {} training windows: recognised ≥ 0.9 × the real {split} \
@@ -680,62 +783,7 @@ pub fn page_section(runs: &[(u64, AskedSet)], sheet: &str, model: &AskedModel) -
         MIN_TRAIN_WINDOWS
     );
     for (k, c) in first.categories.iter().enumerate() {
-        let each: Vec<&Asked> = runs.iter().filter_map(|r| r.1.categories.get(k)).collect();
-        let pct = |f: fn(&Asked) -> f64| ms(each.iter().map(|a| 100.0 * f(a)).collect(), 0);
-        let ratio = |f: fn(&Plain) -> f64| {
-            ms(
-                each.iter().map(|a| f(&a.generated) / f(&a.real)).collect(),
-                2,
-            )
-        };
-        // Reports written before the stride have none: n/a, not NaN.
-        let stride = if each.iter().any(|a| a.real.stride_m <= 0.0) {
-            "n/a".to_string()
-        } else {
-            format!("{} {}", ratio(|p| p.stride_m), bracket(c.stride_spread))
-        };
-        // The goals on the mean over the seeds.
-        let mean =
-            |f: fn(&Asked) -> f64| crate::mean_of(&each.iter().map(|a| f(a)).collect::<Vec<_>>());
-        let mut avg = c.clone();
-        avg.accuracy = mean(|a| a.accuracy);
-        avg.generated.speed_m_s = mean(|a| a.generated.speed_m_s);
-        avg.generated.contact = mean(|a| a.generated.contact);
-        let missed = match (c.in_goals(), avg.misses()) {
-            (false, _) => "(too few training windows)".to_string(),
-            (true, m) if m.is_empty() => "none".into(),
-            (true, m) => m.join(", "),
-        };
-        let seeds: Vec<String> = runs
-            .iter()
-            .filter_map(|(seed, a)| {
-                let m = a.categories.get(k)?.misses();
-                (c.in_goals() && !m.is_empty()).then(|| format!("{seed} ({})", m.join(", ")))
-            })
-            .collect();
-        let spread = |i: usize| bracket(Some(c.real_spread[i]));
-        s += &format!(
-            "| {} | {} / {} | {} | {} | {} | {} | {} {} | {} {} | {} | {} | {} |\n",
-            c.category,
-            c.train_windows,
-            c.split_windows,
-            c.real_accuracy
-                .map_or("n/a".into(), |a| format!("{:.0} %", 100.0 * a)),
-            pct(|a| a.accuracy),
-            pct(|a| a.accuracy_unasked),
-            taken_text(&mean_taken(&each), 2),
-            ratio(|p| p.speed_m_s),
-            spread(0),
-            ratio(|p| p.contact),
-            spread(1),
-            stride,
-            missed,
-            if seeds.is_empty() {
-                "–".into()
-            } else {
-                seeds.join("; ")
-            }
-        );
+        s += &category_row(runs, k, c);
     }
     let whole = |f: fn(&AskedSet) -> f64, p: usize| ms(runs.iter().map(|r| f(&r.1)).collect(), p);
     s += &format!(

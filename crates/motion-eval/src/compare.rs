@@ -114,52 +114,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
                     .map_err(|e| e.within(format!("training {name} seed {seed}")))?;
             }
             let seconds = train_seconds(&dir).unwrap_or(started.elapsed().as_secs_f64());
-            let mut spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
-            if conditioned {
-                spec.category = Some(crate::run::OWN.into());
-            }
-            let kept = dir.join(REPORT_FILE);
-            let report = match std::fs::read_to_string(&kept) {
-                Ok(text) if o.reuse_reports => {
-                    log(&format!("{name} seed {seed}: reusing {}", kept.display()));
-                    serde_json::from_str(&text)?
-                }
-                _ => {
-                    let r = report(&spec, Contexts::Split, o.horizon, None)
-                        .map_err(|e| e.within(format!("evaluating {}", dir.display())))?;
-                    let json = serde_json::to_string_pretty(&r)? + "\n";
-                    motion_render::write_file(&kept, json.as_bytes())?;
-                    r
-                }
-            };
-            log(&format!(
-                "{name} seed {seed}: jerk {:.2}x, bone cv {:.2} %, APD {:.2}x, Fréchet {:.1}",
-                report.generated.jerk_m_s3 / report.real.jerk_m_s3,
-                100.0 * report.generated.bone_cv,
-                report.generated.apd_m / report.real.apd_m,
-                report.frechet_generated
-            ));
-            if let Some(h) = &report.horizon {
-                let bad = h.stretches.iter().filter(|st| !misses(h, st).is_empty());
-                log(&format!(
-                    "{name} seed {seed}: {} of {} stretches of the minute miss a band",
-                    bad.count(),
-                    h.stretches.len()
-                ));
-            }
-            if seed == 0 {
-                let samples = dir.join("samples");
-                let sheet = SampleOptions {
-                    n: 12,
-                    frames: 128,
-                    reconstruct: 0,
-                    sheet_columns: 5,
-                };
-                write_samples(&spec, &sheet, &samples)?;
-                let png = images.join(format!("{name}.png"));
-                std::fs::copy(samples.join("contact_sheet.png"), &png)
-                    .map_err(|cause| EvalError::Io { path: png, cause })?;
-            }
+            let report = evaluated(o, name, seed, conditioned, &dir, &images, log)?;
             runs.push(SeedRun {
                 seed,
                 seconds,
@@ -172,52 +127,73 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
     if let Some(classifier) = &o.classifier {
         md += &conditioned(o, classifier, &images, log)?;
     }
-    // Sections written by hand into the page it replaces go back in.
-    if let Ok(old) = std::fs::read_to_string(&o.page) {
-        md = keep_sections(&md, &old);
-    }
     motion_render::write_file(&o.page, md.as_bytes())?;
     Ok(md)
 }
 
-/// The line that starts a hand-written section of the results page which
-/// `compare` keeps when it rewrites the page: the section runs from this
-/// line to the next `## ` heading after its own.
-pub const KEPT: &str = "<!-- kept by compare -->";
-
-/// The results page's heading before which [`KEPT`] sections go back.
-const GOALS_HEADING: &str = "## Goals met (issue 11)";
-
-/// `page` with every [`KEPT`] section of `old`, in their order, put back
-/// before `page`'s `GOALS_HEADING` (at its end without one).
-pub fn keep_sections(page: &str, old: &str) -> String {
-    let lines: Vec<&str> = old.lines().collect();
-    let mut kept = String::new();
-    let mut i = 0;
-    while i < lines.len() {
-        if lines[i].trim() != KEPT {
-            i += 1;
-            continue;
+/// The report of the run of `name` with `seed` in `dir` (kept in
+/// [`REPORT_FILE`], reused with [`CompareOptions::reuse_reports`]), logged;
+/// seed 0's contact sheet copied into `images`.
+fn evaluated(
+    o: &CompareOptions,
+    name: &str,
+    seed: u64,
+    conditioned: bool,
+    dir: &Path,
+    images: &Path,
+    log: &dyn Fn(&str),
+) -> Result<EvalReport, EvalError> {
+    let mut spec = RunSpec::best(dir.to_path_buf(), Some(o.data.clone()));
+    if conditioned {
+        spec.category = Some(crate::run::OWN.into());
+    }
+    let kept = dir.join(REPORT_FILE);
+    let report = match std::fs::read_to_string(&kept) {
+        Ok(text) if o.reuse_reports => {
+            log(&format!("{name} seed {seed}: reusing {}", kept.display()));
+            serde_json::from_str(&text)?
         }
-        // The marker, the section's own heading, and everything up to the
-        // next heading of that level.
-        let end = (i + 2..lines.len())
-            .find(|&j| lines[j].starts_with("## ") || lines[j].trim() == KEPT)
-            .unwrap_or(lines.len());
-        for l in &lines[i..end] {
-            kept += l;
-            kept += "\n";
+        _ => {
+            let r = report(&spec, Contexts::Split, o.horizon, None)
+                .map_err(|e| e.within(format!("evaluating {}", dir.display())))?;
+            let json = serde_json::to_string_pretty(&r)? + "\n";
+            motion_render::write_file(&kept, json.as_bytes())?;
+            r
         }
-        i = end;
+    };
+    log(&format!(
+        "{name} seed {seed}: jerk {:.2}x, bone cv {:.2} %, APD {:.2}x, Fréchet {:.1}",
+        report.generated.jerk_m_s3 / report.real.jerk_m_s3,
+        100.0 * report.generated.bone_cv,
+        report.generated.apd_m / report.real.apd_m,
+        report.frechet_generated
+    ));
+    if let Some(h) = &report.horizon {
+        let bad = h.stretches.iter().filter(|st| !misses(h, st).is_empty());
+        log(&format!(
+            "{name} seed {seed}: {} of {} stretches of the minute miss a band",
+            bad.count(),
+            h.stretches.len()
+        ));
     }
-    if kept.is_empty() {
-        return page.to_string();
+    if seed == 0 {
+        let samples = dir.join("samples");
+        let sheet = SampleOptions {
+            n: 12,
+            frames: 128,
+            reconstruct: 0,
+            sheet_columns: 5,
+        };
+        write_samples(&spec, &sheet, &samples)?;
+        let png = images.join(format!("{name}.png"));
+        std::fs::copy(samples.join("contact_sheet.png"), &png)
+            .map_err(|cause| EvalError::Io { path: png, cause })?;
     }
-    match page.find(&format!("\n{GOALS_HEADING}")) {
-        Some(at) => format!("{}{kept}{}", &page[..at + 1], &page[at + 1..]),
-        None => format!("{page}{kept}"),
-    }
+    Ok(report)
 }
+
+/// The results page's heading of the goals met.
+const GOALS_HEADING: &str = "## Goals met (issue 11)";
 
 /// The `minute` preset's model, as its section says.
 const MINUTE_ASKED: AskedModel = AskedModel {
@@ -617,6 +593,32 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
     Ok(s)
 }
 
+/// Which minute of a report a row shows: the sampler's or the model alone's.
+type Pick = fn(&EvalReport) -> Option<&Horizon>;
+
+/// How a row of the model alone is named (one draw, pace not held).
+const ALONE: &str = ", model alone";
+
+/// Per model, the minutes of its seeds from the default sampler, then (where
+/// the sampler holds the pace) from the model alone: name, the row's suffix
+/// and the horizons.
+fn sampled(table: &[(String, Vec<SeedRun>)]) -> Vec<(&str, &'static str, Vec<Horizon>)> {
+    let mut out = Vec::new();
+    for (name, runs) in table {
+        let of = |pick: Pick| -> Vec<Horizon> {
+            runs.iter()
+                .filter_map(|r| pick(&r.report).cloned())
+                .collect()
+        };
+        out.push((name.as_str(), "", of(|r| r.horizon.as_ref())));
+        let alone = of(|r| r.horizon_alone.as_ref());
+        if !alone.is_empty() {
+            out.push((name.as_str(), ALONE, alone));
+        }
+    }
+    out
+}
+
 /// The long-horizon section: per model, its first and last stretch of a
 /// minute from training contexts (mean ± std over seeds, as ÷ all real
 /// windows), and the goal of issue 24 §2 stretch by stretch.
@@ -635,8 +637,20 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
          many training windows. Pose spread: how widely the stretches' \
          average poses differ across motions, ÷ real (a diagnostic of the Fréchet distance, \
          [metrics.md](metrics.md)). In the air: the share of frames with no joint within 5 cm of the floor, \
-         in % (the real windows' in the first row).\n\n| model, stretch |",
-        h0.motions, h0.seconds, h0.frames, h0.real_windows, h0.frechet_reference
+         in % (the real windows' in the first row). A model whose sampler holds the pace ({} samplings \
+         per output frame) has rows `…{ALONE}` too: the same contexts and noise seed, one draw, the pace \
+         asked but not held (1 sampling per frame).\n\n| model, stretch |",
+        h0.motions,
+        h0.seconds,
+        h0.frames,
+        h0.real_windows,
+        h0.frechet_reference,
+        means
+            .iter()
+            .filter_map(|m| m.horizon.as_ref())
+            .map(|h| h.samplings_per_frame)
+            .max()
+            .unwrap_or(1)
     );
     for (name, _) in HORIZON_MEASURES {
         let _ = write!(s, " {name} |");
@@ -654,13 +668,7 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
         frechet_draws_range(h0),
         pose_spread_range(h0)
     );
-    let horizons = |runs: &[SeedRun]| -> Vec<Horizon> {
-        runs.iter()
-            .filter_map(|r| r.report.horizon.clone())
-            .collect()
-    };
-    for (name, runs) in table {
-        let hs = horizons(runs);
+    for (name, sampler, hs) in sampled(table) {
         let Some(n) = hs.first().map(|h| h.stretches.len()) else {
             continue;
         };
@@ -668,7 +676,7 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
             let st = &hs[0].stretches[k];
             let _ = write!(
                 s,
-                "| `{name}` {:.1}–{:.1} s |",
+                "| `{name}`{sampler} {:.1}–{:.1} s |",
                 st.start_s,
                 st.start_s + hs[0].frames as f64 / 30.0
             );
@@ -705,14 +713,67 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
             s += "\n";
         }
     }
-    s += "\n### Goal of issue 24 §2: every stretch of the minute within the bands\n\n\
+    s + &realism_table(table) + &minute_goals(table, means)
+}
+
+/// The realism of each model's minute (and the model alone's), mean ± std
+/// over the seeds ([`crate::horizon::Realism`]).
+fn realism_table(table: &[(String, Vec<SeedRun>)]) -> String {
+    let mut s = String::from(
+        "\nRealism: a classifier two-sample test (`eval`'s minute; a logistic regression on each window's \
+         per-feature mean, spread, step and second step, cross-validated by take and by motion): held-out \
+         balanced accuracy at telling the stretch from the real windows, 0.5 when it cannot (goal ≤ 0.65). \
+         Mean ± std over the seeds.\n\n| model | first stretch | last stretch | real vs real |\n|---|---|---|---|\n",
+    );
+    let mut rows = 0;
+    for (name, sampler, hs) in sampled(table) {
+        let r: Vec<&crate::horizon::Realism> =
+            hs.iter().filter_map(|h| h.realism.as_ref()).collect();
+        let cell = |f: fn(&crate::horizon::Realism) -> Option<f64>| {
+            let v: Option<Vec<f64>> = r.iter().map(|x| f(x)).collect();
+            v.filter(|v| !v.is_empty()).map_or("n/a".into(), |v| {
+                let (m, sd) = mean_std(&v);
+                format!("{m:.2} ± {sd:.2}")
+            })
+        };
+        if r.is_empty() {
+            continue;
+        }
+        rows += 1;
+        let _ = writeln!(
+            s,
+            "| `{name}`{sampler} | {} | {} | {} |",
+            cell(|x| x.first),
+            cell(|x| x.last),
+            cell(|x| x.real_vs_real)
+        );
+    }
+    if rows == 0 {
+        return String::new();
+    }
+    s
+}
+
+/// The goal of the minute, model by model (and the model alone where its
+/// sampler holds the pace): stretches within every band on the mean of the
+/// seeds, the bands missed, and the first stretch seed by seed.
+fn minute_goals(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
+    let mut s = String::from("\n### Goal of issue 24 §2: every stretch of the minute within the bands\n\n\
           Bands: jerk 0.67–1.5× (generated, and the reconstruction's), bone cv ≤ 1 %, contact 0.75–1.25×, \
           skating in contact ≤ 2×, APD 0.75–1.25×, hips height and speed 0.75–1.25× (whole stretch and \
           last 32 frames), turning 0.67–1.5×, Fréchet ≤ train-vs-test. On the mean over the seeds every \
           stretch must pass; the first stretch must pass on every seed.\n\n\
-          | model | stretches passing (mean of seeds) | bands missed, mean of seeds (stretches) | first stretch, seed by seed |\n|---|---|---|---|\n";
-    for ((name, runs), mean) in table.iter().zip(means) {
-        let Some(h) = &mean.horizon else { continue };
+          | model | stretches passing (mean of seeds) | bands missed, mean of seeds (stretches) | first stretch, seed by seed |\n|---|---|---|---|\n",
+    );
+    let variants: [(&str, Pick); 2] = [
+        ("", |r| r.horizon.as_ref()),
+        (ALONE, |r| r.horizon_alone.as_ref()),
+    ];
+    for ((sampler, pick), ((name, runs), mean)) in variants
+        .iter()
+        .flat_map(|v| std::iter::repeat(v).zip(table.iter().zip(means)))
+    {
+        let Some(h) = pick(mean) else { continue };
         let recon_ok =
             |r: &EvalReport| (0.67..=1.5).contains(&(r.reconstructed.jerk_m_s3 / r.real.jerk_m_s3));
         let (clean, mut missed) = tally(h);
@@ -723,7 +784,7 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
         let seeds: Vec<String> = runs
             .iter()
             .filter_map(|r| {
-                let h = r.report.horizon.as_ref()?;
+                let h = pick(&r.report)?;
                 let m = misses(h, h.stretches.first()?);
                 let ok = m.is_empty() && recon_ok(&r.report);
                 Some(match ok {
@@ -735,7 +796,7 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
         let missed: Vec<String> = missed.iter().map(|(b, n)| format!("{b} ({n})")).collect();
         let _ = writeln!(
             s,
-            "| `{name}` | {passing} of {} | {} | {} |",
+            "| `{name}`{sampler} | {passing} of {} | {} | {} |",
             h.stretches.len(),
             if missed.is_empty() {
                 "none".into()
@@ -750,33 +811,8 @@ fn minute(table: &[(String, Vec<SeedRun>)], means: &[EvalReport]) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{average, keep_sections, KEPT};
+    use super::average;
     use serde_json::json;
-
-    #[test]
-    fn hand_written_sections_survive_a_rewrite_of_the_page() {
-        let page = "# Results\n\n| t |\n\n## Goals met (issue 11)\n\nnew\n";
-        let old = format!(
-            "# Results\n\nold table\n\n{KEPT}\n## By hand\n\ntext\n\n{KEPT}\n## Also\n\nmore\n\n\
-             ## Goals met (issue 11)\n\nold\n"
-        );
-        assert_eq!(
-            keep_sections(page, &old),
-            format!(
-                "# Results\n\n| t |\n\n{KEPT}\n## By hand\n\ntext\n\n{KEPT}\n## Also\n\nmore\n\n\
-                 ## Goals met (issue 11)\n\nnew\n"
-            )
-        );
-        // Rewriting a page that has its sections already keeps it as it is.
-        let once = keep_sections(page, &old);
-        assert_eq!(keep_sections(page, &once), once);
-        // Nothing kept: the page as written; no "Goals met": at the end.
-        assert_eq!(keep_sections(page, "# Results\n"), page);
-        assert_eq!(
-            keep_sections("# R\n", &old),
-            format!("# R\n{KEPT}\n## By hand\n\ntext\n\n{KEPT}\n## Also\n\nmore\n\n")
-        );
-    }
 
     #[test]
     fn reports_average_field_by_field() {

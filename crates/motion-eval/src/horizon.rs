@@ -104,9 +104,9 @@ pub struct Horizon {
     pub motions: usize,
     /// Frames per stretch (the dataset's window length).
     pub frames: usize,
-    /// Real windows of every split.
+    /// Real windows of the reference splits ([`reference_splits`]).
     pub real_windows: usize,
-    /// Every measure over all real windows.
+    /// Every measure over those real windows.
     pub real: MotionStats,
     /// Per measure, the ratios of draws of as many real windows as there
     /// are motions (without replacement) to all real windows.
@@ -133,14 +133,85 @@ pub struct Horizon {
     /// written before draws were).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub draws: Option<usize>,
+    /// Samplings of the model per output frame ([`samplings_per_frame`]; 0
+    /// in reports written before it was recorded).
+    #[serde(default)]
+    pub samplings_per_frame: usize,
+    /// How well a classifier tells the first and last stretch from the
+    /// real windows (absent in reports written before it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub realism: Option<Realism>,
     /// The stretches, in order.
     pub stretches: Vec<Stretch>,
 }
 
-/// Every split the long horizon reads ([`Run::load`] them all).
+/// Held-out balanced accuracy of a classifier two-sample test
+/// ([`motion_metrics::two_sample::accuracy`]: 0.5, indistinguishable; 1,
+/// always told apart), None where a fold lacked a class.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Realism {
+    /// The first stretch of every motion against the real windows (each
+    /// motion its own group, each take one).
+    pub first: Option<f64>,
+    /// The last stretch against the real windows.
+    pub last: Option<f64>,
+    /// The real windows of half the takes against the other half's: what
+    /// real motion scores.
+    pub real_vs_real: Option<f64>,
+}
+
+/// A take's group for the two-sample test: a fixed hash of its id (FNV-1a).
+fn group_of(take: &str) -> u64 {
+    take.bytes().fold(0xCBF2_9CE4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01B3)
+    })
+}
+
+/// The [`Realism`] of the motions `gen` (each `stretches × per` values)
+/// against the `real` windows (`per` values each) of the takes `takes`.
+fn realism(gen: &[Vec<f32>], real: &[Vec<f32>], takes: &[u64], per: usize, seed: u64) -> Realism {
+    use motion_metrics::two_sample::{accuracy, window_features};
+    let summary = |x: &[f32]| window_features(x, NUM_FEATURES);
+    let real_s: Vec<Vec<f64>> = real.iter().map(|x| summary(x)).collect();
+    let stretches = gen.first().map_or(0, |x| x.len() / per.max(1));
+    let motions: Vec<u64> = (0..gen.len() as u64).collect();
+    let stretch = |k: usize| {
+        let s: Vec<Vec<f64>> = gen
+            .iter()
+            .map(|x| summary(&x[k * per..(k + 1) * per]))
+            .collect();
+        accuracy(&s, &motions, &real_s, takes, seed)
+    };
+    let half = |h: u64| -> (Vec<Vec<f64>>, Vec<u64>) {
+        real_s
+            .iter()
+            .zip(takes)
+            .filter(|(_, &t)| t % 2 == h)
+            .map(|(s, &t)| (s.clone(), t))
+            .unzip()
+    };
+    let ((a, ga), (b, gb)) = (half(0), half(1));
+    Realism {
+        first: (stretches > 0).then(|| stretch(0)).flatten(),
+        last: (stretches > 1).then(|| stretch(stretches - 1)).flatten(),
+        real_vs_real: accuracy(&a, &ga, &b, &gb, seed),
+    }
+}
+
 pub use mocap_ingest::dataset::SPLITS;
 
-/// Roll out `o.motions` motions of the loaded run `m` (with [`SPLITS`]) for
+/// The splits whose real windows an evaluation of `split` compares with:
+/// every split for the report on `test`; `train` and `val` for any other,
+/// so that a choice made on `val` never reads a `test` window.
+pub fn reference_splits(split: &str) -> &'static [&'static str] {
+    match split {
+        "test" => &SPLITS,
+        _ => &["train", "val"],
+    }
+}
+
+/// Roll out `o.motions` motions of the loaded run `m` (with
+/// [`reference_splits`] of `spec.split`) for
 /// `o.seconds`, with `spec`'s context, seed and split, and measure every
 /// stretch (see the module documentation).
 pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, EvalError> {
@@ -178,15 +249,20 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
             }
         })
         .collect();
-    // Every real window of the dataset, and draws of the generated set's size.
+    // Every real window of the reference splits, and draws of the generated
+    // set's size.
     let (mut real, mut real_summaries): (Vec<Vec<Pose>>, Vec<Vec<f64>>) = (Vec::new(), Vec::new());
-    for split in SPLITS {
+    let (mut real_windows, mut real_takes) = (Vec::new(), Vec::new());
+    for &split in reference_splits(&spec.split) {
         if let Some(w) = m.data.splits.get(split) {
             let windows = generate::windows_of(w);
             real.extend(windows.iter().map(|x| to_poses(x, &m.data.stats)));
             real_summaries.extend(generate::summaries(&windows, NUM_FEATURES));
+            real_takes.extend(m.data.takes_of(split).iter().map(|t| group_of(t)));
+            real_windows.extend(windows);
         }
     }
+    let realism = realism(&gen, &real_windows, &real_takes, per, spec.seed);
     let all = motion_stats(&real, &opts);
     let all_pose_spread = motion_metrics::pose_spread(&real_summaries);
     let draw = o.motions.min(real.len() / 2).max(1);
@@ -235,6 +311,8 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
         frechet_draws: frechet_draws(&test_summaries, &train_summaries, o.motions, spec.seed),
         pace_gain: held.map(|h| h.0),
         draws: held.map(|h| h.1),
+        samplings_per_frame: samplings_per_frame(held.map(|h| h.1)),
+        realism: Some(realism),
         stretches: out,
     })
 }
@@ -340,6 +418,15 @@ pub fn misses(h: &Horizon, st: &Stretch) -> Vec<&'static str> {
         .collect()
 }
 
+/// Samplings of the model per output frame: 1 for the model alone, `draws
+/// × (1 + PACE_CORRECTIONS)` for motions held to their pace with `draws`
+/// draws per run ([`motion_vrnn::generate::PACE_CORRECTIONS`]).
+pub fn samplings_per_frame(held_draws: Option<usize>) -> usize {
+    held_draws.map_or(1, |d| {
+        d.max(1) * (1 + motion_vrnn::generate::PACE_CORRECTIONS)
+    })
+}
+
 /// The sentence a report says its motions were held to their asked pace
 /// with (`gain`: [`Horizon::pace_gain`]; `draws`: [`Horizon::draws`];
 /// None: nothing).
@@ -363,13 +450,14 @@ pub fn held_sentence(gain: Option<f64>, draws: Option<usize>) -> String {
     }
 }
 
-/// The long-horizon table in Markdown: one row per stretch, each measure as
-/// generated ÷ all real windows, the real-vs-real range in the header.
-pub fn markdown(h: &Horizon) -> String {
+/// The long-horizon table in Markdown under the heading `title`: one row
+/// per stretch, each measure as generated ÷ all real windows of the
+/// reference splits, the real-vs-real range in the header.
+pub fn markdown(h: &Horizon, title: &str) -> String {
     let mut s = format!(
-        "\n## Long horizon: {} motions rolled out for {:.0} s from training contexts\n\n\
+        "\n## {title}: {} motions rolled out for {:.0} s from training contexts, {} sampling{} per frame\n\n\
          Each {}-frame stretch re-based to its own start and measured against all {} real windows \
-         of the dataset (generated ÷ real); under each measure, the range of the same ratio for \
+         of the reference splits (generated ÷ real); under each measure, the range of the same ratio for \
          {REAL_DRAWS} draws of {} real windows. Fréchet: against the evaluated split \
          (train-vs-split reference {:.1}; under it, the range for {REAL_DRAWS} draws of as many training \
          windows). Bone cv in %. Pose spread: how widely the stretches' average \
@@ -377,6 +465,8 @@ pub fn markdown(h: &Horizon) -> String {
          band; stride (how far the toes swing past each other, generated ÷ real) a diagnostic too.{held}\n\n| stretch |",
         h.motions,
         h.seconds,
+        h.samplings_per_frame,
+        if h.samplings_per_frame == 1 { "" } else { "s" },
         h.frames,
         h.real_windows,
         h.motions.min(h.real_windows / 2),
@@ -428,7 +518,25 @@ pub fn markdown(h: &Horizon) -> String {
             pose_spread_ratio(h, st).map_or("n/a".into(), |r| format!("{r:.2}"))
         );
     }
-    s + &verdict(h)
+    s + &verdict(h) + &realism_line(h)
+}
+
+/// One line on [`Horizon::realism`] (empty in a report without it).
+pub fn realism_line(h: &Horizon) -> String {
+    let Some(r) = &h.realism else {
+        return String::new();
+    };
+    let p = |v: Option<f64>| v.map_or("n/a".into(), |x| format!("{:.2}", x));
+    format!(
+        "\nRealism (a classifier two-sample test: a logistic regression on each window's per-feature mean, \
+         spread, step and second step, {}-fold cross-validated by take and by motion; held-out balanced \
+         accuracy, 0.5: indistinguishable, goal ≤ 0.65): first stretch {}, last stretch {}; real windows \
+         of half the takes against the other half {}.\n",
+        motion_metrics::two_sample::FOLDS,
+        p(r.first),
+        p(r.last),
+        p(r.real_vs_real)
+    )
 }
 
 /// The stretches of `h` that meet every band, and each band missed with
@@ -487,6 +595,20 @@ mod tests {
         }
     }
 
+    #[test]
+    fn val_is_compared_with_train_and_val_only() {
+        assert_eq!(reference_splits("val"), ["train", "val"]);
+        assert_eq!(reference_splits("train"), ["train", "val"]);
+        assert_eq!(reference_splits("test"), ["train", "val", "test"]);
+    }
+
+    #[test]
+    fn the_default_sampler_costs_32_samplings_a_frame() {
+        assert_eq!(samplings_per_frame(None), 1);
+        assert_eq!(samplings_per_frame(Some(1)), 4);
+        assert_eq!(samplings_per_frame(Some(8)), 32);
+    }
+
     fn horizon(stretch: MotionStats, frechet: f64) -> Horizon {
         Horizon {
             seconds: 4.27,
@@ -500,6 +622,8 @@ mod tests {
             frechet_draws: None,
             pace_gain: None,
             draws: None,
+            samplings_per_frame: 1,
+            realism: None,
             stretches: vec![Stretch {
                 start_s: 0.0,
                 generated: stretch,
@@ -529,12 +653,12 @@ mod tests {
     #[test]
     fn the_table_says_when_motions_were_held_to_their_pace() {
         let mut h = horizon(stats(1.0), 60.0);
-        assert!(!markdown(&h).contains("held to its asked pace"));
+        assert!(!markdown(&h, "Long horizon").contains("held to its asked pace"));
         let json = serde_json::to_value(&h).expect("serialises");
         assert!(json.get("pace_gain").is_none(), "absent when not held");
         h.pace_gain = Some(0.5);
         h.draws = Some(8);
-        let md = markdown(&h);
+        let md = markdown(&h, "Long horizon");
         assert!(
             md.contains("of 8 draws of noise so held, the one whose mean pose"),
             "{md}"
@@ -549,7 +673,7 @@ mod tests {
         assert_eq!((back.pace_gain, back.draws), (Some(0.5), Some(8)));
         // One draw is not a choice.
         h.draws = Some(1);
-        assert!(!markdown(&h).contains("draws of noise"));
+        assert!(!markdown(&h, "Long horizon").contains("draws of noise"));
     }
 
     #[test]
@@ -591,13 +715,13 @@ mod tests {
             60.0,
         );
         h.real.stride_m = 0.12;
-        let md = markdown(&h);
+        let md = markdown(&h, "Long horizon");
         assert!(md.contains("| in the air % | stride | Fréchet |"), "{md}");
         assert!(md.contains("| real 0.12 m |"), "{md}");
         let row = md.lines().find(|l| l.starts_with("| 0.0–4.3 s")).unwrap();
         assert!(row.contains("| 0.75 | 60.0 |"), "{row}");
         h.real.stride_m = 0.0;
-        let md = markdown(&h);
+        let md = markdown(&h, "Long horizon");
         let row = md.lines().find(|l| l.starts_with("| 0.0–4.3 s")).unwrap();
         assert!(row.contains("| n/a | 60.0 |"), "{row}");
     }

@@ -16,6 +16,7 @@
 //! - [`compare`]: every model trained with several seeds, evaluated, and
 //!   the results page (mean ± std over seeds, goals met).
 //! - [`chart`]: a run's loss curves as a picture.
+//! - [`speed`]: how fast a run generates, its sampler beside the model alone.
 //!
 //! Above `motion-vrnn`, `motion-metrics` and `motion-render`; below `xtask`,
 //! which parses options, shows progress and prints what these return.
@@ -29,6 +30,7 @@ pub mod recognition;
 pub mod report;
 pub mod run;
 pub mod samples;
+pub mod speed;
 
 use std::path::PathBuf;
 

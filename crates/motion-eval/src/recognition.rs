@@ -43,10 +43,10 @@ pub struct Recognition {
     pub classifier: String,
     /// Generated motions (each continuing a random training window).
     pub motions: usize,
-    /// Recognition accuracy on the real test windows.
+    /// Recognition accuracy on the real windows of the evaluated split.
     pub test_accuracy: Option<f64>,
     /// Fréchet distance of the generated motions' feature vectors to the
-    /// test windows'.
+    /// evaluated split's windows'.
     pub frechet_generated: f64,
     /// The same for the training windows (the reference).
     pub frechet_train: f64,
@@ -76,7 +76,7 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
     let global = |x: &Vec<f32>| to_poses(x, &m.data.stats);
     let gen_poses: Vec<Vec<Pose>> = generated.iter().map(global).collect();
     // The real windows through the classifier, once.
-    let seen = crate::asked::RealSeen::of(m, &c)?;
+    let seen = crate::asked::RealSeen::of(m, &c, &spec.split)?;
     let (real_poses, labels) = (&seen.poses, &seen.labels);
     let (mut real_f, mut recognised) = (Vec::new(), Vec::new());
     for (_, o, _) in &seen.splits {
@@ -84,7 +84,7 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
         real_f.extend(o.features.iter().cloned());
     }
     let train_f = seen.split("train").map_or(&real_f, |s| &s.1.features);
-    let (test_f, test_accuracy) = match seen.split("test") {
+    let (test_f, test_accuracy) = match seen.split(&spec.split) {
         Some((_, o, l)) => (
             &o.features,
             classifier::accuracy(&o.predicted(), l).overall(),
@@ -140,14 +140,14 @@ pub fn recognise(m: &Run, spec: &RunSpec, dir: &Path) -> Result<Recognition, Eva
 }
 
 /// The classifier section of `eval.md`.
-pub fn markdown(r: &Recognition) -> String {
+pub fn markdown(r: &Recognition, split: &str) -> String {
     let opt = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.2}"));
     let mut s = format!(
         "\n## Seen by the motion classifier ({})\n\n\
-         {} motions from training contexts. Feature-space Fréchet distance to the test windows: \
+         {} motions from training contexts. Feature-space Fréchet distance to the {split} windows: \
          generated **{:.1}**, train windows {:.1} (reference). Diversity: real {}, generated {}. \
          Multimodality (by label / by recognised category): real {}, generated {}. \
-         Accuracy on the real test windows: {}. Definitions: [metrics.md](metrics.md).\n\n\
+         Accuracy on the real {split} windows: {}. Definitions: [metrics.md](metrics.md).\n\n\
          Per category: the share of real windows labelled with it, recognised in it, and of generated \
          motions recognised in it; hips speed (m/s), contact share, jerk (m/s³) and APD (m) of the real \
          windows labelled with it → of the generated motions recognised in it.\n\n\
@@ -161,7 +161,7 @@ pub fn markdown(r: &Recognition) -> String {
         opt(r.multimodality_real),
         opt(r.multimodality_generated),
         r.test_accuracy
-            .map_or("n/a (no test windows)".into(), |a| format!("{:.1} %", 100.0 * a)),
+            .map_or(format!("n/a (no {split} windows)"), |a| format!("{:.1} %", 100.0 * a)),
     );
     for sh in &r.shares {
         let pair = |f: fn(&Plain) -> Option<f64>, p: usize| {

@@ -101,6 +101,10 @@ pub struct EvalReport {
     /// Motions rolled out for a minute, stretch by stretch (`eval --horizon`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub horizon: Option<Horizon>,
+    /// The same minute from the model alone (one draw, pace not held), where
+    /// `horizon` was made by a sampler that holds the pace.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub horizon_alone: Option<Horizon>,
     /// Generated motion seen by a motion classifier (`eval --classifier`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub classifier: Option<crate::recognition::Recognition>,
@@ -142,13 +146,18 @@ pub fn report(
     horizon: Option<HorizonOptions>,
     classifier: Option<&std::path::Path>,
 ) -> Result<EvalReport, EvalError> {
-    // The long horizon and the classifier measure against every split: load
-    // them once.
+    // The long horizon and the classifier measure against the reference
+    // splits (never `test` unless it is the split reported): load them once.
     let splits = match horizon.is_some() || classifier.is_some() {
-        true => crate::horizon::SPLITS.to_vec(),
+        true => crate::horizon::reference_splits(&a.split).to_vec(),
         false => vec!["train", a.split.as_str()],
     };
-    let m = Run::load(a, &splits)?;
+    let mut m = Run::load(a, &splits)?;
+    let held = m.held_pace();
+    let (minute, minute_alone) = match horizon {
+        Some(o) => minutes(&mut m, a, o)?,
+        None => (None, None),
+    };
     let (w, categories) = m.labelled(&a.split)?;
     let (recon, kl) = evaluate(&m.model.model, w, categories, 256, a.seed, &m.device)?;
     let t = w.length as f64;
@@ -186,7 +195,6 @@ pub fn report(
     let s_real = summaries(&real);
     let s_train = summaries(&train_windows);
     let (s_rec, s_gen) = (summaries(&rec), summaries(&gen));
-    let held = m.held_pace();
     let report = EvalReport {
         run: a.run.display().to_string(),
         checkpoint: a.checkpoint.clone(),
@@ -226,14 +234,32 @@ pub fn report(
             frechet: motion_metrics::frechet(&s_real, &summaries),
         }),
         warnings: m.warnings.clone(),
-        horizon: horizon
-            .map(|o| crate::horizon::horizon(&m, a, o))
-            .transpose()?,
+        horizon: minute,
+        horizon_alone: minute_alone,
         classifier: classifier
             .map(|dir| crate::recognition::recognise(&m, a, dir))
             .transpose()?,
     };
     Ok(report)
+}
+
+/// The minute of `m` with its sampler and, where that sampler holds the
+/// pace, from the model alone (one draw, no pace held; `m`'s sampler is
+/// restored).
+fn minutes(
+    m: &mut Run,
+    a: &RunSpec,
+    o: HorizonOptions,
+) -> Result<(Option<Horizon>, Option<Horizon>), EvalError> {
+    let minute = crate::horizon::horizon(m, a, o)?;
+    if m.held_pace().is_none() {
+        return Ok((Some(minute), None));
+    }
+    let sampler = (m.pace_gain, m.draws);
+    (m.pace_gain, m.draws) = (0.0, 1);
+    let alone = crate::horizon::horizon(m, a, o);
+    (m.pace_gain, m.draws) = sampler;
+    Ok((Some(minute), Some(alone?)))
 }
 
 /// `eval.md`: the report as a Markdown page.
@@ -256,64 +282,7 @@ pub fn markdown(r: &EvalReport) -> String {
         "Per frame on `{}`: negative ELBO **{:.3}** = reconstruction {:.3} + KL {:.3} (normalised units).\n\n",
         r.split, r.neg_elbo_per_frame, r.recon_per_frame, r.kl_per_frame
     );
-    s += "| measure | real | reconstructed | generated | reconstructed / real | generated / real |\n|---|---|---|---|---|---|\n";
-    type Row = (&'static str, fn(&MotionStats) -> f64, usize);
-    let rows: [Row; 15] = [
-        ("APD, m", |m| m.apd_m, 3),
-        ("mean jerk, m/s³", |m| m.jerk_m_s3, 1),
-        ("power above 5 Hz", |m| m.high_freq_share, 4),
-        ("bone length std / mean", |m| m.bone_cv, 4),
-        (
-            "foot contact (share of foot-frames)",
-            |m| m.contact_share,
-            4,
-        ),
-        ("foot skating (share of foot-frames)", |m| m.skate_share, 4),
-        (
-            "skating among contact foot-frames",
-            |m| m.skate_in_contact,
-            4,
-        ),
-        (
-            "creep of planted toes (contact, not skating), m/s",
-            |m| m.creep_m_s,
-            3,
-        ),
-        ("turning rate, °/s", |m| m.turning_deg_s, 1),
-        (
-            "stride (toes' swing along the facing), m",
-            |m| m.stride_m,
-            3,
-        ),
-        (
-            "frames in the air (no joint within 5 cm of the floor)",
-            |m| m.airborne_share,
-            4,
-        ),
-        ("hips height, m", |m| m.hip_height_m, 3),
-        ("hips height, last 32 frames, m", |m| m.hip_height_end_m, 3),
-        ("hips horizontal speed, m/s", |m| m.root_speed_m_s, 3),
-        (
-            "hips horizontal speed, last 32 frames, m/s",
-            |m| m.root_speed_end_m_s,
-            3,
-        ),
-    ];
-    let ratio = |x: f64, real: f64| {
-        if real.abs() > 1e-6 {
-            format!("{:.2}", x / real)
-        } else {
-            "n/a (real ≈ 0)".into()
-        }
-    };
-    for (name, f, p) in rows {
-        let (a, b, c) = (f(&r.real), f(&r.reconstructed), f(&r.generated));
-        s += &format!(
-            "| {name} | {a:.p$} | {b:.p$} | {c:.p$} | {} | {} |\n",
-            ratio(b, a),
-            ratio(c, a)
-        );
-    }
+    s += &measure_table(r);
     if let Some(t) = &r.from_training {
         let g = &t.generated;
         s += &format!(
@@ -361,13 +330,88 @@ pub fn markdown(r: &EvalReport) -> String {
         ratio(sp.generated, sp.real)
     );
     if let Some(h) = &r.horizon {
-        s += &crate::horizon::markdown(h);
+        let title = match r.horizon_alone {
+            Some(_) => "Long horizon, the default sampler",
+            None => "Long horizon",
+        };
+        s += &crate::horizon::markdown(h, title);
+    }
+    if let Some(h) = &r.horizon_alone {
+        s +=
+            &crate::horizon::markdown(h, "Long horizon, the model alone (one draw, pace not held)");
     }
     if let Some(c) = &r.classifier {
-        s += &crate::recognition::markdown(c);
+        s += &crate::recognition::markdown(c, &r.split);
         if let Some(a) = &c.asked {
             s += &crate::asked::markdown(a);
         }
     }
     s
+}
+
+/// The table of every measure: real, reconstructed and generated, with
+/// their ratios to real.
+fn measure_table(r: &EvalReport) -> String {
+    let mut s = String::new();
+    s += "| measure | real | reconstructed | generated | reconstructed / real | generated / real |\n|---|---|---|---|---|---|\n";
+    type Row = (&'static str, fn(&MotionStats) -> f64, usize);
+    let rows: [Row; 15] = [
+        ("APD, m", |m| m.apd_m, 3),
+        ("mean jerk, m/s³", |m| m.jerk_m_s3, 1),
+        ("power above 5 Hz", |m| m.high_freq_share, 4),
+        ("bone length std / mean", |m| m.bone_cv, 4),
+        (
+            "foot contact (share of foot-frames)",
+            |m| m.contact_share,
+            4,
+        ),
+        ("foot skating (share of foot-frames)", |m| m.skate_share, 4),
+        (
+            "skating among contact foot-frames",
+            |m| m.skate_in_contact,
+            4,
+        ),
+        (
+            "creep of planted toes (contact, not skating), m/s",
+            |m| m.creep_m_s,
+            3,
+        ),
+        ("turning rate, °/s", |m| m.turning_deg_s, 1),
+        (
+            "stride (toes' swing along the facing), m",
+            |m| m.stride_m,
+            3,
+        ),
+        (
+            "frames in the air (no joint within 5 cm of the floor)",
+            |m| m.airborne_share,
+            4,
+        ),
+        ("hips height, m", |m| m.hip_height_m, 3),
+        ("hips height, last 32 frames, m", |m| m.hip_height_end_m, 3),
+        ("hips horizontal speed, m/s", |m| m.root_speed_m_s, 3),
+        (
+            "hips horizontal speed, last 32 frames, m/s",
+            |m| m.root_speed_end_m_s,
+            3,
+        ),
+    ];
+    for (name, f, p) in rows {
+        let (a, b, c) = (f(&r.real), f(&r.reconstructed), f(&r.generated));
+        s += &format!(
+            "| {name} | {a:.p$} | {b:.p$} | {c:.p$} | {} | {} |\n",
+            ratio(b, a),
+            ratio(c, a)
+        );
+    }
+    s
+}
+
+/// `x ÷ real` to two decimals, `n/a` where real is about 0.
+fn ratio(x: f64, real: f64) -> String {
+    if real.abs() > 1e-6 {
+        format!("{:.2}", x / real)
+    } else {
+        "n/a (real ≈ 0)".into()
+    }
 }

@@ -8,6 +8,8 @@
 // Index loops here read like the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+pub mod two_sample;
+
 use mocap_ingest::math::{norm, scale, sub};
 use mocap_ingest::skeleton::{Pose, JOINT_PARENTS, LEFT_TOE, NUM_JOINTS, RIGHT_TOE};
 use serde::{Deserialize, Serialize};

@@ -148,6 +148,8 @@ pub struct Dataset {
     /// column (formats before 4) or without `takes.parquet` gives
     /// [`Category::Other`] for every window.
     pub categories: HashMap<String, Vec<Category>>,
+    /// Per split, the take id of each of its windows (in window order).
+    pub takes: HashMap<String, Vec<String>>,
 }
 
 impl Dataset {
@@ -156,6 +158,12 @@ impl Dataset {
     pub fn split(&self, split: &str) -> Option<(&Windows, &[Category])> {
         let w = self.splits.get(split).filter(|w| w.n > 0)?;
         Some((w, self.categories_of(split)))
+    }
+
+    /// The take of each window of `split` (empty when the split was not
+    /// loaded).
+    pub fn takes_of(&self, split: &str) -> &[String] {
+        self.takes.get(split).map_or(&[], Vec::as_slice)
     }
 
     /// The category of each window of `split` (empty when the split was
@@ -288,6 +296,7 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
     let take_category = take_categories(dir)?;
     let mut out: HashMap<String, Windows> = HashMap::new();
     let mut categories: HashMap<String, Vec<Category>> = HashMap::new();
+    let mut takes: HashMap<String, Vec<String>> = HashMap::new();
     for i in 0..windows.height() {
         let (Some(take), Some(start), Some(len), Some(split)) =
             (wt.get(i), ws.get(i), wl.get(i), wsplit.get(i))
@@ -335,6 +344,10 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
             .entry(split.to_string())
             .or_default()
             .push(category);
+        takes
+            .entry(split.to_string())
+            .or_default()
+            .push(take.to_string());
     }
     if let Some(bad) = out.values().flat_map(|w| &w.data).find(|v| !v.is_finite()) {
         return Err(DataError::Invalid(format!(
@@ -348,6 +361,7 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
         manifest_sha256: manifest,
         splits: out,
         categories,
+        takes,
     })
 }
 

@@ -223,20 +223,20 @@ pub fn continue_windows_with(
         picks.len(),
     );
     let config = model.config();
-    let whole = starts.batch(picks, device)?;
-    // A model with the pace part is asked for each window's own pace, as
-    // it was trained (the whole window's, not its context's).
-    let cond = config.paced(cond.as_ref(), Some(&whole))?;
+    // Only the context is read: nothing after it reaches the motion.
+    let mut context = starts.batch(picks, device)?.narrow(1, 0, k)?;
+    // A model with the pace part is asked for its context's pace.
+    let cond = config.paced(cond.as_ref(), Some(&context))?;
     let frames = o.frames.max(1);
     // Held to that pace ([`PACE_GAIN`]): the target, the weights asking for
     // it that each run's corrections start from, and the context's mean
     // pose each run's draws are chosen by ([`POSE_DRAWS`]).
     let held = match (held_gain(config, o.pace_gain, cond.is_some()), &cond) {
         (Some(gain), Some(c)) => Some(Pace {
-            target: config.pace_of(&whole)?,
+            target: config.pace_of(&context)?,
             asking: c.clone(),
             gain,
-            pose: whole.narrow(1, 0, k)?.mean(1)?,
+            pose: context.mean(1)?,
         }),
         _ => None,
     };
@@ -249,7 +249,6 @@ pub fn continue_windows_with(
         .unwrap_or(frames - 1)
         .min(if held.is_some() { PACE_EVERY } else { frames });
     let mut out: Vec<Vec<f32>> = vec![Vec::with_capacity(frames * f); n];
-    let mut context = whole.narrow(1, 0, k)?;
     let mut made = 0;
     for run in 0u64.. {
         // New frames of this run; the first run also gives the start frame
@@ -395,7 +394,8 @@ pub struct Verdict {
 
 /// Scores models by their generated motion: [`JUDGE_MOTIONS`] motions, each
 /// continuing the first [`CONTEXT`] frames of a training window (a
-/// conditioned model asked for that window's category), measured against the
+/// conditioned model asked for that window's category and its context's
+/// pace at guidance 1; one draw, the pace not held), measured against the
 /// training windows (at most [`JUDGE_REFERENCE`]), the distribution they start from and the model is fit
 /// to. The Fréchet reference is the validation windows' distance to the
 /// training windows: generated windows should come as close to the training

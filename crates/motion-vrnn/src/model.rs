@@ -179,10 +179,9 @@ pub struct Parts {
     /// The pace: a conditioned model also reads, at every step, the mean
     /// of [`PACE_FEATURES`] over the sequence ([`pace`]), so a rollout is
     /// told the height, speed and turning to keep. Training reads each
-    /// whole window's; generation from windows asks for the whole window's
-    /// too ([`crate::generate::continue_windows_with`]), from a clip
-    /// (`continue`) for its context's ([`Config::paced`]). Needs
-    /// [`Config::categories`].
+    /// whole window's; generation asks for its context's, never for frames
+    /// after it ([`crate::generate::continue_windows_with`],
+    /// [`Config::paced`]). Needs [`Config::categories`].
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub pace: bool,
     /// The pace also holds the root's mean horizontal speed ([`root_speed`],

@@ -158,7 +158,8 @@ impl std::str::FromStr for ConditionOn {
 /// How the `best` checkpoint is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SelectBy {
-    /// The epoch whose generated motion is closest to real motion.
+    /// The epoch whose generated motion is closest to the training windows
+    /// ([`crate::generate::Judge`]).
     Generation,
     /// The epoch with the lowest validation loss.
     Loss,

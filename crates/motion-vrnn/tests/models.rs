@@ -1237,18 +1237,19 @@ fn motions_are_held_to_their_pace_run_by_run() {
         };
         continue_windows(m, &windows, picks, &o, &Device::Cpu).unwrap()
     };
-    // One window, by hand: the weights asking for each window's pace, tried
+    // One window, by hand: the weights asking for each context's pace, tried
     // on the draw's noise, each try's ask moved by gain × (target − made).
     let one = PACE_EVERY + 1;
     let c = paced.model.config();
     let by_hand = |picks: &[usize], d: u64, held: bool| {
         let whole = windows.batch(picks, &Device::Cpu).unwrap();
+        let context = whole.narrow(1, 0, k).unwrap();
         let rows: Vec<_> = picks.iter().map(|_| Some(1)).collect();
         let asking = c
-            .paced(Some(&ask(&paced, &rows, 1.25)), Some(&whole))
+            .paced(Some(&ask(&paced, &rows, 1.25)), Some(&context))
             .unwrap()
             .unwrap();
-        let (target, context) = (pace(&whole).unwrap(), whole.narrow(1, 0, k).unwrap());
+        let target = pace(&context).unwrap();
         let seed = 2 ^ 0x5A3F1E ^ (d << 40);
         let eps =
             motion_vrnn::rng::noise(seed, 0, k + one - 1, picks.len(), c.latent, &Device::Cpu)
@@ -1328,6 +1329,76 @@ fn motions_are_held_to_their_pace_run_by_run() {
         assert_eq!(
             run(m, frames, &[0, 2], a, PACE_GAIN, 2),
             run(m, frames, &[0, 2], a, 0.0, 1)
+        );
+    }
+}
+
+/// A generated motion reads its context and nothing after it: changing
+/// every frame of the windows after the context leaves the motions (and so
+/// the pace asked and held, and the draw kept) unchanged, with the default
+/// sampler, one free draw, and the judge's window condition; changing one
+/// context frame changes them.
+#[test]
+fn generated_motion_never_reads_past_its_context() {
+    use motion_vrnn::data::Windows;
+    use motion_vrnn::generate::{continue_windows, continue_windows_with, Ask, Rollout};
+    let mut c = conditioned("motion", true).model.config().clone();
+    c.parts.pace = true;
+    let m = init_model(&c, 4, &Device::Cpu).unwrap();
+    randomise(&m);
+    let (n, len, f, k) = (3, 24, 58, 5);
+    let data: Vec<f32> = Rng::new(9, 9)
+        .normals(n * len * f)
+        .iter()
+        .map(|v| 0.5 * v)
+        .collect();
+    let windows = |data: Vec<f32>| Windows {
+        data,
+        n,
+        length: len,
+        features: f,
+    };
+    let (real, mut future, mut past) = (windows(data.clone()), data.clone(), data);
+    // Every frame after the context: a figure racing off, turning, higher.
+    for w in 0..n {
+        for v in &mut future[(w * len + k) * f..(w + 1) * len * f] {
+            *v = 3.0 - *v * 2.0;
+        }
+    }
+    past[(2 * len + k - 1) * f + 3] += 1.0;
+    let (future, past) = (windows(future), windows(past));
+    let picks = [0, 1, 2];
+    let ask = Some(Ask {
+        row: 1,
+        guidance: 1.4,
+    });
+    for (pace_gain, draws, frames) in [(0.5, 3, 40), (0.0, 1, 40), (0.5, 2, 300)] {
+        let o = Rollout {
+            frames,
+            context: k,
+            seed: 4,
+            ask,
+            pace_gain,
+            draws,
+        };
+        let gen = |w: &Windows| continue_windows(&m.model, w, &picks, &o, &Device::Cpu).unwrap();
+        let base = gen(&real);
+        let same = base == gen(&future);
+        assert!(same, "gain {pace_gain}, {draws} draws: the future was read");
+        assert!(base[2] != gen(&past)[2], "a context frame must matter");
+        // The judge's way: each window asking for its own category.
+        let labels = [motion_vrnn::data::Category::Walk; 3];
+        let judged = |w: &Windows| {
+            let cond = m
+                .model
+                .config()
+                .window_condition(&labels, &picks, 1.0, |_| false, &Device::Cpu)
+                .unwrap();
+            continue_windows_with(&m.model, w, &picks, &o, cond, &Device::Cpu).unwrap()
+        };
+        assert!(
+            judged(&real) == judged(&future),
+            "the judge read the future"
         );
     }
 }
