@@ -1,6 +1,8 @@
 //! The architecture's rules that code can check (docs/ARCHITECTURE.md):
 //! inside each library crate no two top-level modules import each other,
-//! directly or through others, and `xtask/src` stays thin.
+//! directly or through others; `xtask/src` stays thin; no source file over
+//! 1,000 lines and no function over 100; the README and the training
+//! reference stay short enough to read.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -160,4 +162,84 @@ fn xtask_stays_thin() {
         lines < 1500,
         "xtask/src has {lines} lines: move the work into a library crate (docs/ARCHITECTURE.md)"
     );
+}
+
+/// Every `.rs` file of the library crates' `src` and of `xtask/src`.
+fn source_files() -> Vec<PathBuf> {
+    let mut files = Vec::new();
+    for e in std::fs::read_dir(workspace().join("crates")).unwrap().flatten() {
+        rust_files(&e.path().join("src"), &mut files);
+    }
+    rust_files(&workspace().join("xtask/src"), &mut files);
+    files.sort();
+    files
+}
+
+/// The functions of `text` longer than `limit` lines (from the `fn` line to
+/// the brace that closes it at the same indentation): name and length.
+fn long_functions(text: &str, limit: usize) -> Vec<(String, usize)> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < lines.len() {
+        let line = lines[i];
+        let body = line.trim_start();
+        let indent = line.len() - body.len();
+        let name = ["pub fn ", "fn ", "pub(crate) fn ", "pub(super) fn ", "unsafe fn "]
+            .iter()
+            .find_map(|p| body.strip_prefix(p))
+            .map(|rest| rest.split(['(', '<']).next().unwrap_or("").to_string());
+        match name {
+            Some(name) if !body.trim_end().ends_with(';') => {
+                let end = (i + 1..lines.len()).find(|&j| {
+                    let l = lines[j].as_bytes();
+                    l.len() > indent && l[..indent].iter().all(|&b| b == b' ') && l[indent] == b'}'
+                });
+                let end = end.unwrap_or(lines.len() - 1);
+                if end - i + 1 > limit {
+                    out.push((name, end - i + 1));
+                }
+                i = end + 1;
+            }
+            _ => i += 1,
+        }
+    }
+    out
+}
+
+#[test]
+fn the_function_checker_counts_from_fn_to_its_brace() {
+    let text = "fn short() {\n    1\n}\n\n    pub fn long() -> u8 {\n        a();\n        b();\n    }\n";
+    assert_eq!(long_functions(text, 3), [("long".to_string(), 4)]);
+    assert!(long_functions(text, 4).is_empty());
+}
+
+#[test]
+fn no_source_file_over_1000_lines_and_no_function_over_100() {
+    let mut bad = Vec::new();
+    for f in source_files() {
+        let text = std::fs::read_to_string(&f).unwrap();
+        let rel = f.strip_prefix(workspace()).unwrap_or(&f).display().to_string();
+        let n = text.lines().count();
+        if n > 1000 {
+            bad.push(format!("{rel}: {n} lines"));
+        }
+        for (name, len) in long_functions(&text, 100) {
+            bad.push(format!("{rel}: fn {name} is {len} lines"));
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "split these (at most 1,000 lines a file, 100 a function):\n{}",
+        bad.join("\n")
+    );
+}
+
+#[test]
+fn the_readme_and_the_training_reference_stay_short() {
+    let read = |p: &str| std::fs::read_to_string(workspace().join(p)).unwrap();
+    let words = read("README.md").split_whitespace().count();
+    assert!(words <= 1200, "README.md has {words} words (at most 1,200)");
+    let lines = read("docs/training.md").lines().count();
+    assert!(lines <= 800, "docs/training.md has {lines} lines (at most 800)");
 }

@@ -38,11 +38,16 @@ pub struct CompareArgs {
     /// standard` and the default `--preset minute`, each asked for each category.
     #[arg(long)]
     classifier: Option<PathBuf>,
+    /// Only the default model (`motion` with `--preset minute`, asked for each category; needs --classifier).
+    #[arg(long, requires = "classifier")]
+    default_only: bool,
 }
 
 /// `cargo xtask compare`.
 pub fn run(a: CompareArgs) -> Result<()> {
-    let models = if a.models.is_empty() {
+    let models = if a.default_only {
+        Vec::new()
+    } else if a.models.is_empty() {
         motion_vrnn::model::MODELS
             .iter()
             .map(|m| m.0.to_string())
@@ -63,6 +68,7 @@ pub fn run(a: CompareArgs) -> Result<()> {
         }),
         reuse_reports: a.reuse_reports,
         classifier: a.classifier,
+        default_only: a.default_only,
     };
     let md = compare(&o, &|line| eprintln!("{line}"))?;
     println!("{md}");

@@ -45,6 +45,8 @@ pub struct CompareOptions {
     /// default `minute` preset ([`MINUTE`]) with every seed, and ask both for
     /// each category ([`crate::asked`]).
     pub classifier: Option<PathBuf>,
+    /// Of the conditioned runs, only the default ([`MINUTE`]).
+    pub default_only: bool,
 }
 
 /// The directory name (under [`CompareOptions::out`]) of the `motion` model
@@ -83,7 +85,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
         .map(|m| (m.as_str(), m.as_str(), false, Preset::Standard))
         .collect();
     if o.classifier.is_some() {
-        for (name, preset, _) in CONDITIONED_RUNS {
+        for (name, preset, _) in conditioned_runs(o) {
             entries.push((name, motion_vrnn::model::DEFAULT_MODEL, true, preset));
         }
     }
@@ -210,6 +212,15 @@ const CONDITIONED_RUNS: [(&str, Preset, &AskedModel); 2] = [
     (MINUTE, Preset::Minute, &MINUTE_ASKED),
 ];
 
+/// The conditioned runs `o` trains: [`CONDITIONED_RUNS`], or only the
+/// default's with [`CompareOptions::default_only`].
+fn conditioned_runs(o: &CompareOptions) -> Vec<(&'static str, Preset, &'static AskedModel)> {
+    CONDITIONED_RUNS
+        .into_iter()
+        .filter(|r| !o.default_only || r.0 == MINUTE)
+        .collect()
+}
+
 /// Ask each seed's run of each conditioned model (trained with the other
 /// models) for every category, draw seed 0's category sheet; the results
 /// page's sections.
@@ -220,7 +231,7 @@ fn conditioned(
     log: &dyn Fn(&str),
 ) -> Result<String, EvalError> {
     let mut md = String::new();
-    for (name, _, model) in CONDITIONED_RUNS {
+    for (name, _, model) in conditioned_runs(o) {
         md += &asked_runs(o, classifier, images, log, name, model)?;
     }
     Ok(md)
@@ -509,7 +520,7 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
     let mut s = String::from("# Results: every model, several seeds\n\n");
     let _ = writeln!(
         s,
-        "Written by `cargo xtask compare --data {} --page {}{}` ({} seeds per model, the `standard` schedule{}). \
+        "Written by `cargo xtask compare --data {} --page {}{}{}` ({} seeds per model, each with its preset's schedule{}). \
          Each run is evaluated as `cargo xtask eval` does: its `best` checkpoint, the 51-odd real `test` windows, \
          one generated motion of 128 frames per test window (sampling seed 0, at the model's temperature, each continuing the first 16 frames of its window; \
          a conditioned model asked for that window's category at guidance {}), \
@@ -521,18 +532,22 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
             .as_ref()
             .map(|c| format!(" --classifier {}", c.display()))
             .unwrap_or_default(),
+        if a.default_only { " --default-only" } else { "" },
         a.seeds,
         a.epochs.map(|e| format!(", {e} epochs")).unwrap_or_default(),
         motion_vrnn::generate::GUIDANCE
     );
-    s += "Which split each choice was made on: every run's `best` checkpoint is chosen by the judge on \
-          training windows (with `val` as its Fréchet reference); the parts of the `motion` model and their \
-          settings (issue 11) were chosen on the `test` split, which is slower than the data (issue 24); the \
-          seam easing and restarting ([training.md](training.md)) were judged on generation from training \
-          contexts and the `test` continuation together; conditioning the `motion` model on the category was \
-          chosen on `val` (Fréchet distance and ELBO) and the minute from training contexts, its guidance scale on `val`; the `minute` preset, \
-          now the default, on the minute from training contexts and `val`, and its pace gain on the minute from \
-          training contexts and `val`. Every table reports `test` or, for the minute, all real windows.\n\n";
+    s += "The protocol ([metrics.md](metrics.md), \"The protocol\"): a generated motion reads its context and \
+          nothing after it (its category is its window's, its pace its context frames'); an evaluation on `val` \
+          compares with `train` and `val` windows only; this page reads `test`, once, to report. Every table \
+          reports `test` or, for the minute and the categories, every real window.\n\n\
+          Which split chose each adopted setting: the `best` checkpoint, the judge on training windows (`val` \
+          gives its Fréchet reference); the parts of the `motion` model and their settings (issue 11), on `test`; \
+          the seam easing and restarting, on training contexts and the `test` continuation together; the \
+          category and pace conditioning, the guidance scale, the pace gain, the draws and the `minute` preset, \
+          on `val` and the minute from training contexts, but with references that pooled `test` windows and \
+          the pace of the whole window, the protocol before 2026-12-05 ([experiments.md](experiments.md)). None \
+          of them has been chosen again under this protocol yet.\n\n";
     s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
     for (name, _) in table {
         let what = match name.as_str() {

@@ -264,40 +264,8 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
     }
     let realism = realism(&gen, &real_windows, &real_takes, per, spec.seed);
     let all = motion_stats(&real, &opts);
-    let all_pose_spread = motion_metrics::pose_spread(&real_summaries);
-    let draw = o.motions.min(real.len() / 2).max(1);
-    let draws: Vec<(MotionStats, f64)> = (0..REAL_DRAWS as u64)
-        .into_par_iter()
-        .map(|d| {
-            let perm = motion_vrnn::rng::Rng::new(spec.seed, 0xD4A7 + d).permutation(real.len());
-            let pick: Vec<Vec<Pose>> = perm[..draw].iter().map(|&i| real[i].clone()).collect();
-            let summaries: Vec<Vec<f64>> = perm[..draw]
-                .iter()
-                .map(|&i| real_summaries[i].clone())
-                .collect();
-            (
-                motion_stats(&pick, &opts),
-                motion_metrics::pose_spread(&summaries),
-            )
-        })
-        .collect();
-    let (lo, hi) = lo_hi(draws.iter().map(|d| d.1 / all_pose_spread));
-    let real_pose_spread = PoseSpread {
-        all: all_pose_spread,
-        lo,
-        hi,
-    };
-    let real_spread = MEASURES
-        .iter()
-        .map(|(name, f)| {
-            let (lo, hi) = lo_hi(draws.iter().map(|d| f(&d.0) / f(&all)));
-            Spread {
-                measure: name.to_string(),
-                lo,
-                hi,
-            }
-        })
-        .collect();
+    let (real_spread, real_pose_spread) =
+        real_draws(&real, &real_summaries, &all, o.motions, spec.seed);
     let held = m.held_pace();
     Ok(Horizon {
         seconds: (stretches * len) as f64 / fps,
@@ -315,6 +283,53 @@ pub fn horizon(m: &Run, spec: &RunSpec, o: HorizonOptions) -> Result<Horizon, Ev
         realism: Some(realism),
         stretches: out,
     })
+}
+
+/// The real-vs-real ranges of [`REAL_DRAWS`] draws (seeded by `seed`) of
+/// as many of the `real` windows as there are `motions` (at most half of
+/// them): each measure's ratio to `all`, and the pose spread's.
+fn real_draws(
+    real: &[Vec<Pose>],
+    real_summaries: &[Vec<f64>],
+    all: &MotionStats,
+    motions: usize,
+    seed: u64,
+) -> (Vec<Spread>, PoseSpread) {
+    let all_pose_spread = motion_metrics::pose_spread(&real_summaries);
+    let draw = motions.min(real.len() / 2).max(1);
+    let draws: Vec<(MotionStats, f64)> = (0..REAL_DRAWS as u64)
+        .into_par_iter()
+        .map(|d| {
+            let perm = motion_vrnn::rng::Rng::new(seed, 0xD4A7 + d).permutation(real.len());
+            let pick: Vec<Vec<Pose>> = perm[..draw].iter().map(|&i| real[i].clone()).collect();
+            let summaries: Vec<Vec<f64>> = perm[..draw]
+                .iter()
+                .map(|&i| real_summaries[i].clone())
+                .collect();
+            (
+                motion_stats(&pick, &Options::default()),
+                motion_metrics::pose_spread(&summaries),
+            )
+        })
+        .collect();
+    let (lo, hi) = lo_hi(draws.iter().map(|d| d.1 / all_pose_spread));
+    let real_pose_spread = PoseSpread {
+        all: all_pose_spread,
+        lo,
+        hi,
+    };
+    let spread = MEASURES
+        .iter()
+        .map(|(name, f)| {
+            let (lo, hi) = lo_hi(draws.iter().map(|d| f(&d.0) / f(all)));
+            Spread {
+                measure: name.to_string(),
+                lo,
+                hi,
+            }
+        })
+        .collect();
+    (spread, real_pose_spread)
 }
 
 /// [`FrechetDraws`] of `train` summaries against `split`'s, drawn with

@@ -175,13 +175,7 @@ pub fn report(
     let generated =
         |set: &[Vec<f32>]| -> Vec<Vec<Pose>> { set.iter().map(|x| m.generated_poses(x)).collect() };
     let from_training = match contexts {
-        Contexts::Split => {
-            let g = m.sample(w.n, w.length, a.context, a.seed)?;
-            Some((
-                motion_stats(&generated(&g), &Options::default()),
-                generate::summaries(&g, NUM_FEATURES),
-            ))
-        }
+        Contexts::Split => Some(from_training_contexts(&m, a, w.n, w.length)?),
         Contexts::Train => None,
     };
     let o = Options::default();
@@ -241,6 +235,22 @@ pub fn report(
             .transpose()?,
     };
     Ok(report)
+}
+
+/// `n` motions of `frames` frames from random training contexts (as
+/// `sample` makes them): their measures and window summaries.
+fn from_training_contexts(
+    m: &Run,
+    a: &RunSpec,
+    n: usize,
+    frames: usize,
+) -> Result<(MotionStats, Vec<Vec<f64>>), EvalError> {
+    let g = m.sample(n, frames, a.context, a.seed)?;
+    let poses: Vec<Vec<Pose>> = g.iter().map(|x| m.generated_poses(x)).collect();
+    Ok((
+        motion_stats(&poses, &Options::default()),
+        generate::summaries(&g, NUM_FEATURES),
+    ))
 }
 
 /// The minute of `m` with its sampler and, where that sampler holds the
