@@ -91,6 +91,26 @@ fn train_checkpoint_reload_gives_the_same_loss() {
         e.contains("batch: 8 → 4") && e.contains("condition: null →"),
         "{e}"
     );
+
+    // A checkpoint with settings this version does not have (an older
+    // version's options) loads, ignoring them, and is not resumed.
+    let meta_path = run.join(layout::LAST).join(layout::META);
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&meta_path).unwrap()).unwrap();
+    v["config"]["mirror"] = true.into();
+    v["config"]["model"]["parts"]["swing"] = 1.0.into();
+    std::fs::write(&meta_path, v.to_string()).unwrap();
+    let (old, _) = load_model(&run.join(layout::LAST), &dev).unwrap();
+    let c = old.model.losses(&x, &eps, None, None).unwrap();
+    assert_eq!(s(&a.recon), s(&c.recon));
+    let err = train(&data, &tiny_config(), &run, true, &dev, &Quiet)
+        .err()
+        .unwrap();
+    let e = err.to_string();
+    assert!(
+        e.contains("mirror") && e.contains("model.parts.swing") && e.contains("not resumed"),
+        "{e}"
+    );
 }
 
 #[test]

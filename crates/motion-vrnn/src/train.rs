@@ -690,12 +690,62 @@ pub fn read_meta(dir: &Path) -> Result<CheckpointMeta, TrainError> {
     serde_json::from_str(&text).map_err(|e| io_err(&p, e))
 }
 
+/// The settings in the configuration of the checkpoint in `dir` that
+/// [`TrainConfig`] does not read, as JSON paths (`model.parts.swing`):
+/// options of an older version. [`read_meta`] ignores them; a resume
+/// refuses them.
+pub fn unknown_settings(dir: &Path) -> Result<Vec<String>, TrainError> {
+    use serde_json::Value;
+    /// The paths of `raw` that `known` lacks; under an object `known`
+    /// lacks altogether (one serialised only when not all default), those
+    /// whose values are not defaults (`false`, 0, null).
+    fn walk(path: &str, raw: &Value, known: Option<&Value>, out: &mut Vec<String>) {
+        let Some(raw) = raw.as_object() else {
+            return;
+        };
+        for (k, v) in raw {
+            let p = if path.is_empty() {
+                k.clone()
+            } else {
+                format!("{path}.{k}")
+            };
+            match known.map(|w| w.get(k)) {
+                Some(Some(w)) => walk(&p, v, Some(w), out),
+                _ if v.is_object() => walk(&p, v, None, out),
+                Some(None) => out.push(p),
+                None if !(v.is_null() || v == false || v.as_f64() == Some(0.0)) => out.push(p),
+                None => {}
+            }
+        }
+    }
+    let p = dir.join(layout::META);
+    let text = std::fs::read_to_string(&p).map_err(|e| io_err(&p, e))?;
+    let raw: serde_json::Value = serde_json::from_str(&text).map_err(|e| io_err(&p, e))?;
+    let meta: CheckpointMeta = serde_json::from_value(raw.clone()).map_err(|e| io_err(&p, e))?;
+    let known = serde_json::to_value(&meta.config).map_err(|e| io_err(&p, e))?;
+    let mut out = Vec::new();
+    walk("", &raw["config"], Some(&known), &mut out);
+    Ok(out)
+}
+
 /// Load a checkpoint's model (for sampling, evaluation, tests).
 pub fn load_model(dir: &Path, device: &Device) -> Result<(Trained, CheckpointMeta), TrainError> {
     let meta = read_meta(dir)?;
     let mut t = init_model(&meta.config.model, 0, device)?;
     let mp = dir.join(layout::MODEL);
-    t.varmap.load(&mp).map_err(|e| io_err(&mp, e))?;
+    t.varmap.load(&mp).map_err(|e| {
+        let unknown = unknown_settings(dir).unwrap_or_default();
+        match unknown.is_empty() {
+            true => io_err(&mp, e),
+            false => io_err(
+                &mp,
+                format!(
+                    "{e} (the checkpoint has settings this version does not read: {})",
+                    unknown.join(", ")
+                ),
+            ),
+        }
+    })?;
     Ok((t, meta))
 }
 
@@ -863,6 +913,14 @@ pub fn train(
     let mut best_generated: Option<(f64, usize)> = None;
     if resume {
         let meta = read_meta(&last_dir)?;
+        let unknown = unknown_settings(&last_dir)?;
+        if !unknown.is_empty() {
+            return Err(TrainError::Invalid(format!(
+                "{}: the checkpoint was trained with settings this version does not have ({}); it can be sampled and evaluated, not resumed",
+                last_dir.display(),
+                unknown.join(", ")
+            )));
+        }
         // Only the number of epochs may change on resume.
         let same_but_epochs = TrainConfig {
             epochs: meta.config.epochs,
