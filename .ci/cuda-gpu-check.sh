@@ -18,7 +18,7 @@
 # xtask dataset` on the shared samples); it finds the toolkit's libraries
 # (cuBLAS, cuRAND, the CUDA runtime) with `find` and prints one verdict line
 # per model. Its logs and runs go to ${OUT:-/tmp}/cuda-gpu-check.tgz.
-# CHECK_ROWS="minute average" runs only the rows named (default: all of them).
+# CHECK_ROWS="minute paper-preset" runs only the rows named (default: all of them).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 die() { echo "cuda-gpu-check: $*" >&2; exit 1; }
@@ -93,7 +93,7 @@ run() {
       echo "$n: not on the GPU" >>"$work/failures"
     fi
   }
-  local m all="paper smooth skeletal feet fed motion minute average paper-preset"
+  local m all="paper smooth skeletal feet fed motion minute paper-preset"
   local rows="${CHECK_ROWS:-$all}"
   for m in $rows; do
     case " $all " in *" $m "*) ;; *) die "CHECK_ROWS: no row $m (rows: $all)" ;; esac
@@ -107,9 +107,6 @@ run() {
   # The minute preset: feed rounds at the temperature and the pace as a condition.
   row minute gpu --preset minute
   row minute cpu --preset minute
-  # The weights' average: the judge scores it and `best` keeps it.
-  row average gpu --average 0.95 --inits 1
-  row average cpu --average 0.95 --inits 1
   row paper-preset gpu --model paper --preset paper
   row paper-preset cpu --model paper --preset paper
   # Sampling the default's run exercises the pace on the sampling path too.
@@ -131,7 +128,7 @@ for n in sys.argv[2:]:
         print(f"{n:13s} MISSING"); bad += 1; continue
     g, c = ([json.loads(l) for l in open(f)] for f in p)
     worst = max(abs(a[k] - b[k]) / abs(b[k]) for a, b in zip(g, c) for k in keys)
-    # The judge's scores, where it judged (for `average`, the average's).
+    # The judge's scores, where it judged.
     judged = [(a["generated"]["score"], b["generated"]["score"]) for a, b in zip(g, c) if a.get("generated") and b.get("generated")]
     judge = max((abs(x - y) / abs(y) for x, y in judged), default=0.0)
     ok = len(g) == len(c) and worst <= 1e-4 and judge <= 1e-4

@@ -39,9 +39,6 @@ pub struct RunArgs {
     /// Foot-lock sharpness (contact logits times this) instead of the model's own (1: as trained).
     #[arg(long)]
     pub contact_sharpness: Option<f64>,
-    /// Keep generated figures' lowest joint at most this high above the floor (CMU units; 0: no limit).
-    #[arg(long)]
-    pub float_limit: Option<f64>,
     /// Generate in runs of this many frames, each restarting on the last --context made (0: one run).
     #[arg(long)]
     pub restart: Option<usize>,
@@ -170,7 +167,6 @@ impl RunArgs {
             context: self.context,
             temperature: self.temperature,
             contact_sharpness: self.contact_sharpness,
-            float_limit: self.float_limit,
             restart: self.restart,
             category: self.category.clone(),
             guidance: self.guidance,

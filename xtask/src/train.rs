@@ -15,138 +15,69 @@ pub struct TrainArgs {
     /// Dataset directory written by `cargo xtask dataset`.
     #[arg(long, default_value = "data/datasets/cmu")]
     pub data: PathBuf,
-    /// Run directory (checkpoints, metrics, loss curve).
+    /// Run directory: checkpoints, metrics, loss curve.
     #[arg(long, default_value = "runs/vrnn")]
     pub out: PathBuf,
-    /// The model (`paper`, `smooth`, `skeletal`, `feet`, `fed`, `motion`; see docs/training.md).
+    /// The model: `paper`, `smooth`, `skeletal`, `feet`, `fed` or `motion` (docs/training.md).
     #[arg(long, default_value = motion_vrnn::model::DEFAULT_MODEL, value_parser = motion_vrnn::model::parse_name)]
     pub model: String,
-    /// Override the model's latent filter pole (0: off).
-    #[arg(long)]
-    pub latent_filter: Option<f64>,
-    /// Override the model's output filter pole (0: off).
-    #[arg(long)]
-    pub output_filter: Option<f64>,
-    /// Override the weight of the model's foot-slide penalty (0: off).
-    #[arg(long)]
-    pub feet_weight: Option<f64>,
-    /// Override the model's KL weight after warm-up (1: the ELBO).
-    #[arg(long)]
-    pub kl_weight: Option<f64>,
-    /// Override the largest share of frames fed back in training (scheduled sampling; 0: off).
-    #[arg(long)]
-    pub self_feed: Option<f64>,
-    /// Override the model's rounds of feeding back (each from the previous round's; 1: one step deep; 0: every depth, one pass in time order).
-    #[arg(long)]
-    pub feed_rounds: Option<usize>,
-    /// Override the sampling temperature (the prior's std × this, also for the judge; 1: as trained).
-    #[arg(long)]
-    pub temperature: Option<f64>,
-    /// Feed back in training at that temperature, as sampling draws (docs/training.md).
-    #[arg(long)]
-    pub rollouts_at_temperature: bool,
-    /// Keep generated figures' lowest joint at most this high above the floor (CMU units; 0: no limit).
-    #[arg(long)]
-    pub float_limit: Option<f64>,
-    /// Planted toes (contact loss) must also move slower than this, m/s (0: height alone; docs/training.md).
-    #[arg(long)]
-    pub contact_speed: Option<f64>,
-    /// Weight of the swing loss: the prior's one-step predictions must swing as far as real frames (0: off; docs/training.md).
-    #[arg(long)]
-    pub swing_weight: Option<f64>,
-    /// Weight of the fed jerk loss: the frames fed back must jerk as much as real ones (0: off; needs --rollout-gradient; docs/training.md).
-    #[arg(long)]
-    pub fed_jerk_weight: Option<f64>,
-    /// Weight of the fed speed loss: each window's fed frames must move the root as fast as real ones (0: off; through the whole rollout with --rollout-gradient, else one step deep; docs/training.md).
-    #[arg(long)]
-    pub fed_speed_weight: Option<f64>,
-    /// Weight of the root's motion (vel_x, vel_z, ang_vel_y) in the squared error (1: the ELBO's; measured, not adopted; docs/training.md).
-    #[arg(long)]
-    pub root_weight: Option<f64>,
-    /// Let the gradient flow through the fed-back frames (a step costs about 1.4× the default; needs --feed-rounds 0; docs/training.md).
-    #[arg(long)]
-    pub rollout_gradient: bool,
-    /// After feeding back, one more round with the gradient: the rollout's gradient one level deep (docs/training.md).
-    #[arg(long, conflicts_with = "rollout_gradient")]
-    pub last_round_gradient: bool,
-    /// Override the model's latent size (the paper's 8; docs/training.md, "Wider").
-    #[arg(long)]
-    pub latent: Option<usize>,
-    /// Override the model's LSTM hidden size (the paper's 32).
-    #[arg(long, value_parser = motion_vrnn::options::parse_size)]
-    pub hidden: Option<usize>,
-    /// Override the feature extractor's two layer sizes, `A,B` (the paper's 48,32; the `minute` preset's 64,32).
-    #[arg(long, value_parser = motion_vrnn::options::parse_two_sizes)]
-    pub extractor: Option<[usize; 2]>,
-    /// Override the decoder's two layer sizes, `A,B` (the paper's 32,48; the `minute` preset's 64,96).
-    #[arg(long, value_parser = motion_vrnn::options::parse_two_sizes)]
-    pub decoder: Option<[usize; 2]>,
-    /// Starting point for every option below (docs/training.md, "Presets").
-    /// `minute`: `standard` with --feed-rounds 0 --rollouts-at-temperature
-    /// --condition category+pace --judge-stretches 14 --judge-every 10 --inits 3
-    /// --extractor 64,32 --decoder 64,96 --epochs 600 --early-stopping 0
-    /// --rollout-last 300 --late-root-weight 8 (the last four for `motion`);
-    /// `standard`: batch 64, 400 epochs, KL warm-up 20, clipping 100, early
-    /// stopping 60; `quick`: 30 epochs; `paper`: the paper (batch 1,600).
+    /// The settings the options below replace: `minute` (a minute of motion), `standard`, `quick` or `paper` (docs/training.md).
     #[arg(long, default_value = "minute")]
     pub preset: Preset,
-    /// Epochs (`minute`: 600 for `motion`, 400 for the others; `standard`: 400).
+    /// Epochs (minute: 600 with `motion`, else 400; standard: 400; quick: 30; paper: 2000).
     #[arg(long)]
     pub epochs: Option<usize>,
-    /// Windows per step.
+    /// Windows per step (paper: 1600; the others: 64).
     #[arg(long)]
     pub batch: Option<usize>,
-    /// Adam learning rate.
+    /// Adam learning rate (0.001).
     #[arg(long)]
     pub lr: Option<f64>,
-    /// Learning rate of the last epoch as a share of --lr, reached along a half cosine over the second half of the epochs (1: constant).
+    /// Learning rate of the last epoch as a share of --lr, reached along a half cosine over the second half (minute, standard: 0.1; quick, paper: 1, constant).
     #[arg(long)]
     pub lr_final: Option<f64>,
-    /// Seed of initialisation, shuffling and noise.
+    /// Seed of initialisation, shuffling and noise (0).
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Initialisations tried for 20 epochs each, the best on validation kept (1: the seed's alone; `minute`: 3; docs/training.md).
+    /// Initialisations tried for 20 epochs each, the best on validation kept (minute: 3; the others: 1).
     #[arg(long)]
     pub inits: Option<usize>,
-    /// Fed-back frames in runs of this many consecutive frames (1: each on its own).
+    /// The feature extractor's two layer sizes, `A,B` (minute: 64,32; the others: 48,32).
+    #[arg(long, value_parser = motion_vrnn::options::parse_two_sizes)]
+    pub extractor: Option<[usize; 2]>,
+    /// The decoder's two layer sizes, `A,B` (minute: 64,96; the others: 32,48).
+    #[arg(long, value_parser = motion_vrnn::options::parse_two_sizes)]
+    pub decoder: Option<[usize; 2]>,
+    /// Sampling temperature saved with the model; the judge samples at it, and the minute preset draws its fed-back frames at it (`motion`: 0.7; the others: 1).
     #[arg(long)]
-    pub feed_run: Option<usize>,
-    /// Judge and keep as `best` a moving average of the weights with this decay per step, e.g. 0.95 (0: off; needs --select generation; docs/training.md).
-    #[arg(long)]
-    pub average: Option<f64>,
-    /// Also train on the windows' left-right mirror images, each window mirrored every other epoch (measured, not adopted; docs/training.md).
-    #[arg(long)]
-    pub mirror: bool,
-    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (weight 1 unless --fed-speed-weight; `minute`: 300, every epoch when there are fewer; 0: none; a late step costs 1.4–1.6× an early one; docs/training.md).
+    pub temperature: Option<f64>,
+    /// Train the last N epochs with the gradient through the fed-back frames and the fed speed loss (minute with `motion`: 300; else 0, none).
     #[arg(long, value_name = "N")]
     pub rollout_last: Option<usize>,
-    /// Weight of the root's motion in the squared error in those last N epochs only (`minute`: 8; 1: the ELBO's; needs late epochs; docs/training.md).
+    /// Weight of the root's motion in the squared error in those last N epochs (minute with `motion`: 8; else 1, the ELBO's).
     #[arg(long, value_name = "W")]
     pub late_root_weight: Option<f64>,
-    /// KL warm-up epochs (0: off).
+    /// Epochs over which the KL weight rises from 0 to 1 (minute, standard: 20; quick: 5; paper: 0, off).
     #[arg(long)]
     pub kl_warmup: Option<usize>,
-    /// Clip the global gradient norm (0: off).
+    /// Clip the global gradient norm at this (paper: 0, off; the others: 100).
     #[arg(long)]
     pub clip: Option<f64>,
-    /// Early-stopping patience in epochs (0: off).
+    /// Stop after this many epochs without a lower validation loss (minute with `motion`, paper: 0, off; minute, standard: 60; quick: 10).
     #[arg(long)]
     pub early_stopping: Option<usize>,
     /// How `best` is chosen: `generation` (every --judge-every epochs, 200 motions continuing 16 frames of training windows, one draw at guidance 1, measured on their first and last stretch against the training windows; the validation windows give the Fréchet reference) or `loss` (lowest validation loss; the paper preset's).
     #[arg(long)]
     pub select: Option<SelectBy>,
-    /// Epochs between two judgements of generated motion (--select generation).
+    /// Epochs between two judgements of generated motion with --select generation (minute: 10; standard: 5).
     #[arg(long)]
     pub judge_every: Option<usize>,
-    /// Window-long stretches the judge rolls its motions out for (scores the first and the last; 1: one window).
+    /// Window-long stretches the judge rolls its motions out for, scoring the first and the last (minute: 14; the others: 1).
     #[arg(long)]
     pub judge_stretches: Option<usize>,
-    /// `category` (the `standard` preset's): condition on each window's category, so `sample --category walk` can ask for one; `category+pace` (`minute`'s): and on its pace; `category+pace+speed`: the pace with the root's mean speed (measured, not adopted); `none`: neither (`quick`, `paper`).
+    /// What the model is conditioned on, so `sample --category walk` can ask for one: `category+pace` (minute), `category` (standard) or `none` (quick, paper).
     #[arg(long)]
     pub condition: Option<ConditionOn>,
-    /// Share of windows trained without their category (--condition category).
-    #[arg(long)]
-    pub condition_dropout: Option<f64>,
     /// Continue the run in --out from its `last` checkpoint.
     #[arg(long)]
     pub resume: bool,
@@ -198,18 +129,18 @@ impl Bar {
 
 impl TrainArgs {
     /// The options that replace the preset's values: each option is the
-    /// field of [`Overrides`] of the same name (a field left out, or one
-    /// `Overrides` lacks, does not compile).
+    /// field of [`Overrides`] of the same name, and the fields only a preset
+    /// sets are left as they are (a field left out, or one `Overrides`
+    /// lacks, does not compile).
     fn overrides(&self) -> Overrides {
         macro_rules! same_names {
-            ($($f:ident)*) => { Overrides { $($f: self.$f),* } };
+            ($($f:ident)*) => {
+                Overrides { $($f: self.$f,)* feed_rounds: None, rollouts_at_temperature: false }
+            };
         }
         same_names! {
-            latent_filter output_filter feet_weight kl_weight self_feed feed_rounds temperature
-            latent hidden extractor decoder epochs batch lr lr_final seed kl_warmup clip early_stopping select judge_every
-            judge_stretches condition condition_dropout rollouts_at_temperature float_limit
-            contact_speed swing_weight fed_jerk_weight fed_speed_weight root_weight rollout_gradient last_round_gradient inits
-            feed_run average mirror rollout_last late_root_weight
+            temperature extractor decoder epochs batch lr lr_final seed kl_warmup clip early_stopping
+            select judge_every judge_stretches condition inits rollout_last late_root_weight
         }
     }
 }

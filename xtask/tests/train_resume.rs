@@ -75,14 +75,6 @@ fn sigkill_and_resume_reaches_the_uninterrupted_result() {
     kill_and_resume(&[]);
 }
 
-/// The weights' average (`--average`) is part of the optimiser's state: the
-/// judged `best` after a resume is the uninterrupted run's.
-#[test]
-fn the_weights_average_resumes_exactly() {
-    integration_tests::require_samples!();
-    kill_and_resume(&["--average", "0.9"]);
-}
-
 /// `--rollout-last 8` trains the first 7 epochs as the plain run
 /// (`--rollout-last 0`) does and the last 8 otherwise (the gradient through
 /// the fed frames, the fed speed loss and the preset's root weight), and a
@@ -236,21 +228,6 @@ fn refused(cases: &[(&[&str], &str)]) {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(says), "{args:?}: {err}");
     }
-}
-
-#[test]
-fn the_weights_average_needs_the_judge_and_a_decay_under_1() {
-    integration_tests::require_samples!();
-    refused(&[
-        (
-            &["--average", "0.9", "--select", "loss"],
-            "--average needs --select generation",
-        ),
-        (
-            &["--average", "1.5", "--select", "generation"],
-            "a decay between 0 and 1, got 1.5",
-        ),
-    ]);
 }
 
 #[test]

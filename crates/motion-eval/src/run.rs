@@ -33,9 +33,6 @@ pub struct RunSpec {
     /// Foot-lock sharpness instead of the model's own
     /// (`Parts::contact_sharpness`).
     pub contact_sharpness: Option<f64>,
-    /// The ceiling over the floor instead of the model's own
-    /// (`Parts::float_limit`; `Some(0)`: none).
-    pub float_limit: Option<f64>,
     /// Frames per run of the recurrence instead of the model's own
     /// (`Some(0)`: one run; see `Parts::restart`).
     pub restart: Option<usize>,
@@ -72,7 +69,6 @@ impl RunSpec {
             context: generate::CONTEXT,
             temperature: None,
             contact_sharpness: None,
-            float_limit: None,
             restart: None,
             category: None,
             guidance: generate::GUIDANCE,
@@ -155,12 +151,6 @@ impl Run {
                 .model
                 .set_contact_sharpness(Some(k))
                 .map_err(|e| EvalError::Invalid(format!("--contact-sharpness: {e}")))?;
-        }
-        if let Some(l) = spec.float_limit {
-            model
-                .model
-                .set_float_limit((l != 0.0).then_some(l))
-                .map_err(|e| EvalError::Invalid(format!("--float-limit: {e}")))?;
         }
         if let Some(r) = spec.restart {
             model.model.set_restart(Some(r));

@@ -33,11 +33,6 @@ pub const DEFAULT: &str = "minute";
 /// ([`crate::train::TrainConfig::late_model`]).
 pub const LATE: &str = "minute-late";
 
-/// The bench's name for [`DEFAULT`] with every size twice the paper's ([`Config::widened`];
-/// `cargo xtask train --extractor 64,64 --hidden 64 --latent 16 --decoder
-/// 64,96`): timed when named, not in the default list.
-pub const WIDE: &str = "minute-wide";
-
 /// The CPU a bench ran on, for its header: the model name `/proc/cpuinfo`
 /// gives (where there is one) and the width of the matrix products'
 /// kernel, so that timings from different machines are not confused.
@@ -78,16 +73,11 @@ pub fn bench_models() -> Vec<String> {
 /// `name` if it is one of [`bench_models`], or an error listing them (a
 /// command-line parser).
 pub fn parse_model(name: &str) -> Result<String, String> {
-    let mut names = bench_models();
-    names.push(WIDE.to_string());
-    crate::model::one_of(name, &names)
+    crate::model::one_of(name, &bench_models())
 }
 
 /// The configuration `name` ([`bench_models`]) stands for.
 fn bench_config(name: &str) -> Option<Config> {
-    if name == WIDE {
-        return bench_config(DEFAULT).map(Config::widened);
-    }
     if name == CONDITIONED || name == DEFAULT || name == LATE {
         let mut c = Config::named(crate::model::DEFAULT_MODEL)?;
         if name != CONDITIONED {
@@ -177,7 +167,7 @@ pub fn time_steps(
             let mut times = Vec::new();
             for step in 0..steps.max(1) + 2 {
                 let eps = noise(0, step as u64, t, b, model.latent, device)?;
-                let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, 1, device)?;
+                let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, device)?;
                 let start = std::time::Instant::now();
                 let grads = if path == "fused" {
                     let c = cond.as_ref();
@@ -543,30 +533,8 @@ mod tests {
         let mut back = l.clone();
         back.parts.rollout_gradient = false;
         back.parts.root_weight = None;
-        back.parts.fed_speed = d.parts.fed_speed;
+        back.parts.fed_speed = None;
         assert_eq!(back, d, "nothing else differs");
-    }
-
-    #[test]
-    fn the_wide_default_is_timed_when_named_and_differs_only_in_its_sizes() {
-        assert_eq!(parse_model(WIDE), Ok(WIDE.to_string()));
-        assert!(!bench_models().iter().any(|m| m == WIDE));
-        let (d, w) = (bench_config(DEFAULT).unwrap(), bench_config(WIDE).unwrap());
-        assert_eq!(
-            (w.extractor, w.hidden, w.latent, w.decoder),
-            ([64, 64], 64, 16, [64, 96])
-        );
-        assert_eq!(w.clone().widened(), w);
-        assert_eq!(
-            Config {
-                extractor: d.extractor,
-                hidden: d.hidden,
-                latent: d.latent,
-                decoder: d.decoder,
-                ..w
-            },
-            d
-        );
     }
 
     fn row(model: &str, batch: usize, median: f64) -> StepTiming {

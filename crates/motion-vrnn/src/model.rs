@@ -134,7 +134,7 @@ pub struct Parts {
     pub temperature: Option<f64>,
     /// The feed rounds draw the prior's latent at [`Parts::temperature`],
     /// as sampling does, so training rolls out the motion generation will
-    /// make (false: at 1, the prior as trained; `--rollouts-at-temperature`).
+    /// make (false: at 1, the prior as trained; the `minute` preset's).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub rollouts_at_temperature: bool,
     /// The gradient flows through the fed-back frames: fed back to every
@@ -142,19 +142,10 @@ pub struct Parts {
     /// (`rollout::RolloutOp`; the step loop `Vrnn::fed_in_sequence` off
     /// the CPU) instead of the fused pass on detached ones, so the losses
     /// after a fed frame reach what made it. A training step costs about
-    /// 1.4× the default's (`docs/training.md`, "The gradient through the
-    /// rollout"). Needs `feed_rounds` 0.
+    /// 1.4× one without it. Needs `feed_rounds` 0. Set in the late epochs
+    /// ([`crate::train::TrainConfig::late_model`]).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub rollout_gradient: bool,
-    /// After feeding back without a gradient, one more round of feeding
-    /// back on the model's own weights, its recurrence reading the frames
-    /// fed back, so the losses reach, through each fed frame, the prior,
-    /// decoder, skeleton and lock that made it from the state before it and
-    /// the recurrence that led to that state: the gradient through the
-    /// rollout one level deep, at the cost of one more teacher-forced pass
-    /// (`docs/training.md`, "One level deep"). Not with `rollout_gradient`.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub last_round_gradient: bool,
     /// Generation in runs of at most this many new frames: after each, the
     /// recurrence restarts from a fresh state, reading the last frames made
     /// as its context, so it never runs far longer than the windows it was
@@ -169,13 +160,6 @@ pub struct Parts {
     /// longer pulls the root back. Training and the ELBO do not use it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_sharpness: Option<f64>,
-    /// When generating, the lowest joint is kept at most this high above
-    /// the floor (CMU units; None: no limit, the default; `--float-limit`):
-    /// a figure cannot float higher. Training and the ELBO do not use it;
-    /// the judge, which generates, does (`docs/training.md`, "A ceiling
-    /// over the floor": measured, not adopted).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub float_limit: Option<f64>,
     /// The pace: a conditioned model also reads, at every step, the mean
     /// of [`PACE_FEATURES`] over the sequence ([`pace`]), so a rollout is
     /// told the height, speed and turning to keep. Training reads each
@@ -184,47 +168,22 @@ pub struct Parts {
     /// [`Config::paced`]). Needs [`Config::categories`].
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub pace: bool,
-    /// The pace also holds the root's mean horizontal speed ([`root_speed`],
-    /// m/s less [`SPEED_CENTRE_M_S`]) as its last column: a motion that
-    /// goes back and forth has a speed and no mean velocity. Needs
-    /// [`Parts::pace`] and [`Config::body`].
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub pace_speed: bool,
-    /// The foot lock's contact loss counts a real toe as planted only where
-    /// it is low and also slides less than this in the world (m/s; None:
-    /// low is enough, as before). A toe below 5 cm still slides at toe-off
-    /// and heel-strike; taught to call it planted, the lock lets it pull
-    /// the root back (`docs/training.md`, "Planted means still").
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub contact_speed: Option<f64>,
-    /// Weight of the swing loss (None: off): each window's one-step
-    /// predictions drawn from the prior, as sampling draws them, must swing
-    /// as far as the real frames, feature by feature (the standard
-    /// deviation over the window of 8-frame means; [`swing_loss`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub swing: Option<f64>,
-    /// Weight of the fed jerk loss (None: off; needs
-    /// [`Parts::rollout_gradient`]): the frames the recurrence reads, fed
-    /// ones among them, must jerk as much as the real frames, feature by
-    /// feature ([`fed_jerk_loss`]). Through the rollout's gradient it
-    /// reaches every step that made a fed frame.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fed_jerk: Option<f64>,
     /// Weight of the fed speed loss (None: off; needs the skeleton's
     /// statistics): over each window's fed frames, the root's mean
     /// horizontal speed must be the real frames', as a ratio
     /// ([`fed_speed_loss`]). A loss on what the rollout does over a window,
-    /// not on each frame. With [`Parts::rollout_gradient`] it reaches every
-    /// step of the rollout; without it the fed frames are decoded again,
-    /// with the graph, from the prior's draws at the states the scan
-    /// reached, so it reaches what made each frame from the state before it.
+    /// not on each frame: through the gradient of [`Parts::rollout_gradient`]
+    /// it reaches every step that made a fed frame (without it the fed
+    /// frames carry no gradient, nor does the loss). Set, with that, in the
+    /// late epochs ([`crate::train::TrainConfig::late_model`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fed_speed: Option<f64>,
     /// Weight of the root's motion ([`ROOT_FEATURES`]) in the squared
     /// error, in place of the ELBO's 1 (None: 1): the term `(w − 1) Σ (x̂ −
     /// x)²` over those features joins the extra losses, so the
     /// reconstruction and the ELBO reported stay the model's. The decoder
-    /// spends more of itself on where the root goes.
+    /// spends more of itself on where the root goes. Set in the late
+    /// epochs ([`crate::train::TrainConfig::late_root_weight`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub root_weight: Option<f64>,
 }
@@ -255,44 +214,19 @@ pub fn pace(x: &Tensor) -> Result<Tensor> {
     Tensor::cat(&columns, 2)?.mean(1)
 }
 
-/// What the speed column of the pace ([`Parts::pace_speed`]) is counted
-/// from, m/s: a fixed offset that keeps the column near the others' scale
-/// (the shared samples' categories move at 0.07–0.70 m/s on average), so
-/// a model asked for no frames' pace ([`Config::paced`]) asks for 1 m/s.
-pub const SPEED_CENTRE_M_S: f64 = 1.0;
-
-/// The mean horizontal speed of the root over the frames of each of `x:
-/// [B, T, ≥ 58]` (normalised features, `body`'s statistics), CMU units a
-/// frame: `[B]`. Unlike the [`pace`]'s mean velocity, a motion that goes
-/// back and forth has it.
-pub fn root_speed(x: &Tensor, body: &Body) -> Result<Tensor> {
-    frame_speed(x, &body.stats(), 0.0)?.mean(1)?.squeeze(1)
-}
-
 /// The root's horizontal speed `√(vx² + vz² + offset)` in each frame of
 /// `x: [B, T, ≥ 58]` (normalised features, `body`'s statistics), CMU units
-/// a frame: `[B, T, 1]`. A positive `offset` keeps the gradient finite at
-/// a standstill.
+/// a frame: `[B, T, 1]`. The positive `offset` keeps the gradient finite
+/// at a standstill.
 fn frame_speed(x: &Tensor, body: &feet::Stats, offset: f64) -> Result<Tensor> {
     let squared = |f: usize| feet::raw_col(x, f, body)?.sqr();
-    let sum = (squared(VEL_X)? + squared(VEL_Z)?)?;
-    match offset > 0.0 {
-        true => (sum + offset)?.sqrt(),
-        false => sum.sqrt(),
-    }
+    ((squared(VEL_X)? + squared(VEL_Z)?)? + offset)?.sqrt()
 }
 
 impl Parts {
     /// Nothing beyond the paper.
     pub fn is_paper(&self) -> bool {
         *self == Parts::default()
-    }
-
-    /// [`Parts::contact_speed`] in CMU units a frame (the dataset's 30 fps).
-    pub fn still_units(&self) -> Option<f32> {
-        let fps = motion_metrics::Options::default().fps;
-        self.contact_speed
-            .map(|v| (v / fps / motion_metrics::METRES_PER_UNIT) as f32)
     }
 
     /// Rounds of scheduled sampling ([`Parts::feed_rounds`]; 0: every
@@ -394,19 +328,6 @@ fn seam_weight(t: usize) -> f64 {
 }
 
 impl Config {
-    /// Twice the paper's sizes (extractor 64/64, LSTM 64, latent 16,
-    /// decoder 64/96), the rest as it is: docs/training.md, "Twice as wide, on
-    /// today's default".
-    pub fn widened(self) -> Config {
-        Config {
-            extractor: [64, 64],
-            hidden: 64,
-            latent: 16,
-            decoder: [64, 96],
-            ..self
-        }
-    }
-
     /// The model called `name` in [`MODELS`].
     pub fn named(name: &str) -> Option<Config> {
         let smooth = Parts {
@@ -452,27 +373,16 @@ impl Config {
     /// ([`Parts::pace`]), or none.
     pub fn pace_columns(&self) -> usize {
         if self.parts.pace {
-            PACE_FEATURES.len() + usize::from(self.parts.pace_speed)
+            PACE_FEATURES.len()
         } else {
             0
         }
     }
 
-    /// The pace of sequences `x: [B, T, ≥ 58]` as this model reads it:
-    /// [`pace`], and with [`Parts::pace_speed`] the root's mean speed
-    /// (m/s less [`SPEED_CENTRE_M_S`]) after it, `[B, pace_columns]`.
+    /// The pace of sequences `x: [B, T, ≥ 58]` as this model reads it
+    /// ([`pace`]), `[B, pace_columns]`.
     pub fn pace_of(&self, x: &Tensor) -> Result<Tensor> {
-        let p = pace(x)?;
-        if !self.parts.pace_speed {
-            return Ok(p);
-        }
-        // Never fewer columns than `pace_columns` says.
-        let Some(body) = &self.body else {
-            candle_core::bail!("the pace's speed needs the skeleton's statistics (Config::fit_to)");
-        };
-        let per_unit = motion_metrics::Options::default().fps * motion_metrics::METRES_PER_UNIT;
-        let s = root_speed(x, body)?.affine(per_unit, -SPEED_CENTRE_M_S)?;
-        Tensor::cat(&[&p, &s.unsqueeze(1)?], 1)
+        pace(x)
     }
 
     /// `cond` with the pace of `x: [B, T, input]` ([`Parts::pace`]) as its
@@ -605,22 +515,17 @@ impl Config {
     /// same parts, apart from those any model can be trained with: the
     /// pace as a condition ([`Parts::pace`]), how deep and at what
     /// temperature they are fed back ([`Parts::feed_rounds`],
-    /// [`Parts::rollouts_at_temperature`]; the `minute` preset's), the
-    /// ceiling over the floor ([`Parts::float_limit`]) and planted toes
-    /// that must be still ([`Parts::contact_speed`]).
+    /// [`Parts::rollouts_at_temperature`]; the `minute` preset's) and the
+    /// late epochs' ([`Parts::rollout_gradient`], [`Parts::fed_speed`],
+    /// [`Parts::root_weight`]).
     pub fn name(&self) -> Option<&'static str> {
         let plain = |p: &Parts| Parts {
             pace: false,
             feed_rounds: None,
             rollouts_at_temperature: false,
-            float_limit: None,
-            contact_speed: None,
-            swing: None,
-            fed_jerk: None,
             fed_speed: None,
             root_weight: None,
             rollout_gradient: false,
-            last_round_gradient: false,
             ..p.clone()
         };
         MODELS
@@ -868,22 +773,8 @@ impl Vrnn {
                 "the pace part needs a model conditioned on the category and the 58 features"
             );
         }
-        if c.parts.pace_speed && !(c.parts.pace && c.body.is_some()) {
-            candle_core::bail!(
-                "the pace's speed needs the pace part and the skeleton's statistics"
-            );
-        }
         positive("kl_weight", c.parts.kl_weight)?;
         positive("temperature", c.parts.temperature)?;
-        positive("float limit", c.parts.float_limit)?;
-        positive("contact speed", c.parts.contact_speed)?;
-        positive("swing weight", c.parts.swing)?;
-        positive("fed jerk weight", c.parts.fed_jerk)?;
-        if c.parts.fed_jerk.is_some() && !c.parts.rollout_gradient {
-            candle_core::bail!(
-                "the fed jerk loss needs the gradient through the rollout (--rollout-gradient): without it the fed frames carry no gradient"
-            );
-        }
         positive("fed speed weight", c.parts.fed_speed)?;
         positive("root weight", c.parts.root_weight)?;
         if c.parts.fed_speed.is_some() && c.body.is_none() {
@@ -891,14 +782,9 @@ impl Vrnn {
                 "the fed speed loss needs the skeleton's statistics (a skeletal model)"
             );
         }
-        if c.parts.rollout_gradient && c.parts.last_round_gradient {
-            candle_core::bail!(
-                "the gradient through the rollout and through its last round are two ways of the same; choose one"
-            );
-        }
         if c.parts.rollout_gradient && c.parts.rounds() != 0 {
             candle_core::bail!(
-                "the gradient through the rollout needs feeding back to every depth (--feed-rounds 0, the default preset's)"
+                "the gradient through the rollout needs feeding back to every depth (feed_rounds 0, the minute preset's)"
             );
         }
         let gaussian = |input: usize, vb: VarBuilder| -> Result<[Lin; 2]> {
@@ -1162,14 +1048,6 @@ impl Vrnn {
     pub fn set_contact_sharpness(&mut self, k: Option<f64>) -> Result<()> {
         positive("contact sharpness", k)?;
         self.config.parts.contact_sharpness = k;
-        Ok(())
-    }
-
-    /// Generate with the lowest joint kept at most `limit` above the floor
-    /// ([`Parts::float_limit`]; None: no limit) instead of the model's own.
-    pub fn set_float_limit(&mut self, limit: Option<f64>) -> Result<()> {
-        positive("float limit", limit)?;
-        self.config.parts.float_limit = limit;
         Ok(())
     }
 
@@ -1510,18 +1388,11 @@ impl MotionModel for Vrnn {
                     Some(self.fed_back(&i)?)
                 } else {
                     let (b, detached) = (bias.map(Bias::detached), feat.detach());
-                    let fed = self.detached().fed_back(&Feed {
+                    Some(self.detached().fed_back(&Feed {
                         feat: &detached,
                         bias: b.as_ref(),
                         ..i
-                    })?;
-                    match self.config.parts.last_round_gradient {
-                        // One more round on the model's own weights, reading
-                        // the frames fed back: the gradient reaches what made
-                        // each fed frame from the state before it.
-                        true => Some(self.feed_round(&i, Some(&fed))?),
-                        false => Some(fed),
-                    }
+                    })?)
                 }
             }
             None => None,
@@ -1539,42 +1410,16 @@ impl MotionModel for Vrnn {
             }
         }
         if let (Some(body), Some(l)) = (&self.config.body, &logits) {
-            let still = self.config.parts.still_units();
-            extra = (extra + (feet::contact_loss(l, x, &body.stats(), still)? / b)?)?;
+            extra = (extra + (feet::contact_loss(l, x, &body.stats())? / b)?)?;
         }
         if let Some(w) = self.config.parts.root_weight {
             let root = |t: &Tensor| t.narrow(2, ROOT_FEATURES.start, ROOT_FEATURES.len());
             extra = (extra + (squared_error(&root(&x_hat)?, &root(x)?)? * ((w - 1.0) / b))?)?;
         }
-        if let (Some(w), Some(fed), Some(mask)) = (self.config.parts.fed_jerk, &fed, feed) {
-            extra = (extra + (fed_jerk_loss(fed, x, mask)? * (w / b))?)?;
-        }
-        // The prior's one-step frames at the states the scan reached, with
-        // the graph, decoded once for the losses that read them: the swing
-        // loss, and the fed speed loss when the fed frames carry no graph of
-        // their own (these are those frames made again, so its gradient
-        // reaches what made each of them from the state before it, and no
-        // further back).
-        let parts = &self.config.parts;
-        let fed_graph = parts.rollout_gradient || parts.last_round_gradient;
-        let own = match parts.swing.is_some() || (parts.fed_speed.is_some() && !fed_graph) {
-            true => {
-                let e = self.prior_noise(&eps)?;
-                Some(self.prior_decoded(&p, &s.h, &e, lengths.as_ref(), bias)?)
-            }
-            false => None,
-        };
         if let (Some(w), Some(fed), Some(mask), Some(body)) =
-            (parts.fed_speed, &fed, feed, &self.config.body)
+            (self.config.parts.fed_speed, &fed, feed, &self.config.body)
         {
-            let frames = match &own {
-                Some(own) if !fed_graph => own,
-                _ => fed,
-            };
-            extra = (extra + (fed_speed_loss(frames, x, mask, &body.stats())? * (w / b))?)?;
-        }
-        if let (Some(w), Some(own)) = (parts.swing, &own) {
-            extra = (extra + (swing_loss(own, x)? * (w / b))?)?;
+            extra = (extra + (fed_speed_loss(fed, x, mask, &body.stats())? * (w / b))?)?;
         }
         Ok(Losses {
             recon: (recon / b)?,
@@ -1666,9 +1511,6 @@ impl MotionModel for Vrnn {
                             None => l,
                         };
                         x = self.lock_step(Some(prev), &x, &l)?;
-                    }
-                    if let (Some(limit), Some(body)) = (c.parts.float_limit, &self.config.body) {
-                        x = feet::ceiling(&x, limit, &body.stats())?;
                     }
                     let feat = self.features(&x)?;
                     (x, feat)
@@ -1794,65 +1636,6 @@ fn positive(what: &str, v: Option<f64>) -> Result<()> {
     }
 }
 
-/// Frames averaged together before the swing loss measures a spread
-/// ([`swing_loss`]): a low pass, so that jitter does not count as swing.
-pub const SWING_FRAMES: usize = 8;
-
-/// The swing loss of `own: [B, T, F]` against the real `x`: per window and
-/// feature, the standard deviation over the window of the means of
-/// [`SWING_FRAMES`] consecutive frames; its squared difference summed and
-/// scaled by `T` (so it weighs like a per-frame error).
-pub fn swing_loss(own: &Tensor, x: &Tensor) -> Result<Tensor> {
-    let (b, t, f) = own.dims3()?;
-    let n = t / SWING_FRAMES;
-    if n < 2 {
-        return Tensor::zeros((), own.dtype(), own.device());
-    }
-    let spread = |a: &Tensor| -> Result<Tensor> {
-        let a = a
-            .narrow(1, 0, n * SWING_FRAMES)?
-            .reshape((b, n, SWING_FRAMES, f))?
-            .mean(2)?;
-        let centred = a.broadcast_sub(&a.mean_keepdim(1)?)?;
-        (centred.sqr()?.mean(1)? + 1e-6)?.sqrt()
-    };
-    let x = x.narrow(2, 0, f)?.contiguous()?;
-    (spread(own)? - spread(&x)?)?.sqr()?.sum_all()? * t as f64
-}
-
-/// The fed jerk loss of the frames the recurrence read, `fed: [B, T, F]`
-/// (real frames where `mask: [B, T]` is 0, the model's own where it is
-/// 1), against the real `x`: per window and feature, the root mean square
-/// of the third differences over time `a[t+3] − 3 a[t+2] + 3 a[t+1] − a[t]`
-/// at the positions whose four frames hold a fed one; its squared
-/// difference from the real frames' at the same positions, summed and
-/// scaled by `T` (so it weighs like a per-frame error). Zero for a window
-/// with no fed frame.
-pub fn fed_jerk_loss(fed: &Tensor, x: &Tensor, mask: &Tensor) -> Result<Tensor> {
-    let (_, t, _) = fed.dims3()?;
-    if t < 4 {
-        return Tensor::zeros((), fed.dtype(), fed.device());
-    }
-    let n = t - 3;
-    let mut at = mask.narrow(1, 0, n)?;
-    for k in 1..4 {
-        at = at.maximum(&mask.narrow(1, k, n)?)?;
-    }
-    let at = at.unsqueeze(2)?;
-    let count = (at.sum_keepdim(1)? + 1e-6)?;
-    let rms = |a: &Tensor| -> Result<Tensor> {
-        let d = ((a.narrow(1, 3, n)? - a.narrow(1, 0, n)?)?
-            - ((a.narrow(1, 2, n)? - a.narrow(1, 1, n)?)? * 3.0)?)?;
-        let mean = d
-            .sqr()?
-            .broadcast_mul(&at)?
-            .sum_keepdim(1)?
-            .broadcast_div(&count)?;
-        (mean + 1e-6)?.sqrt()
-    };
-    (rms(fed)? - rms(x)?)?.sqr()?.sum_all()? * t as f64
-}
-
 /// Added to a window's mean speed before [`fed_speed_loss`] takes its
 /// logarithm (CMU units a frame; about 0.008 m/s): standing windows are
 /// compared without the logarithm of nothing.
@@ -1928,63 +1711,6 @@ mod tests {
     use super::*;
     use mocap_ingest::skeleton::JOINT_PARENTS;
 
-    /// Hand-computed: a window at 0 for 8 frames and at 2 for 8 more
-    /// swings by 1 (the population standard deviation of the two means)
-    /// against a still one's √1e-6; jitter within 8 frames is no swing.
-    #[test]
-    fn the_swing_loss_measures_the_spread_of_eight_frame_means() {
-        let t = |v: Vec<f32>| Tensor::from_vec(v, (1, 16, 1), &Device::Cpu).unwrap();
-        let value = |a: &Tensor, b: &Tensor| swing_loss(a, b).unwrap().to_scalar::<f32>().unwrap();
-        let step = t((0..16).map(|i| if i < 8 { 0.0 } else { 2.0 }).collect());
-        let still = t(vec![0.0; 16]);
-        let expected = ((1.0f64 + 1e-6).sqrt() - 1e-3).powi(2) * 16.0;
-        assert!((value(&step, &still) as f64 - expected).abs() < 1e-4);
-        assert_eq!(value(&step, &step), 0.0);
-        let jitter = t((0..16)
-            .map(|i| if i % 2 == 0 { 1.0 } else { -1.0 })
-            .collect());
-        assert!(value(&jitter, &still) < 1e-6);
-        // Fewer than two groups of frames: nothing to measure.
-        let short = Tensor::zeros((1, 12, 1), DType::F32, &Device::Cpu).unwrap();
-        assert_eq!(value(&short, &short), 0.0);
-    }
-
-    /// One fed frame of height 1 among still real ones, frame 2 of 8: the
-    /// third differences at positions 0, 1, 2 (the ones whose four frames
-    /// hold it) are −3, 3, −1; positions 3 and 4 do not count.
-    #[test]
-    fn the_fed_jerk_loss_counts_the_positions_that_hold_a_fed_frame() {
-        let dev = &Device::Cpu;
-        let one_at_2 = |len: usize| (0..len).map(|i| f32::from(i == 2)).collect::<Vec<_>>();
-        let fed = Tensor::from_vec(one_at_2(8), (1, 8, 1), dev).unwrap();
-        let mask = Tensor::from_vec(one_at_2(8), (1, 8), dev).unwrap();
-        let still = Tensor::zeros((1, 8, 1), DType::F32, dev).unwrap();
-        let value = |f: &Tensor, m: &Tensor| {
-            fed_jerk_loss(f, &still, m)
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap() as f64
-        };
-        let rms = (19.0f64 / (3.0 + 1e-6) + 1e-6).sqrt();
-        let expected = (rms - 1e-3).powi(2) * 8.0;
-        assert!((value(&fed, &mask) - expected).abs() < 1e-5 * expected);
-        // No fed frame: nothing to measure.
-        assert_eq!(
-            value(&still, &Tensor::zeros((1, 8), DType::F32, dev).unwrap()),
-            0.0
-        );
-        // Too short for a third difference.
-        let short = Tensor::zeros((1, 3, 1), DType::F32, dev).unwrap();
-        let m = Tensor::ones((1, 3), DType::F32, dev).unwrap();
-        assert_eq!(
-            fed_jerk_loss(&short, &short, &m)
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap(),
-            0.0
-        );
-    }
-
     /// Four frames, 1 and 3 fed: the fed frames' speeds 5 (3, 4) and 0,
     /// the real ones 0, so the means are about 2.5 and 0 and the loss about
     /// ln(2.505 / 0.0051)² · 4 = 153.6 (with velocity stds of 2 and 0.5 as
@@ -2036,33 +1762,6 @@ mod tests {
 
     fn row(v: &[f32]) -> Tensor {
         Tensor::from_vec(v.to_vec(), (1, 1, 58), &Device::Cpu).unwrap()
-    }
-
-    #[test]
-    fn the_ceiling_lowers_a_floating_figure_to_the_limit_and_leaves_the_rest() {
-        let body = identity_body();
-        // Heights: root 10, joint j at 5 + j (lowest 5); x and z at 7.
-        let mut v = [7f32; 58];
-        v[0] = 10.0;
-        for j in 0..BONES {
-            v[1 + 3 * j + 1] = 5.0 + j as f32;
-        }
-        let got = |v: &[f32; 58], limit: f64| -> Vec<f32> {
-            feet::ceiling(&row(v), limit, &body.stats())
-                .and_then(|t| t.flatten_all()?.to_vec1::<f32>())
-                .unwrap()
-        };
-        let low = got(&v, 3.0);
-        assert_eq!(low[0], 8.0);
-        for j in 0..BONES {
-            assert_eq!(low[1 + 3 * j + 1], 3.0 + j as f32, "joint {j}");
-            assert_eq!((low[1 + 3 * j], low[1 + 3 * j + 2]), (7.0, 7.0));
-        }
-        assert_eq!(&low[55..], &[7.0, 7.0, 7.0]);
-        // At or under the limit nothing moves; nor does a sunken figure.
-        assert_eq!(got(&v, 5.0), v.to_vec());
-        v[5] = -2.0;
-        assert_eq!(got(&v, 3.0), v.to_vec());
     }
 
     #[test]

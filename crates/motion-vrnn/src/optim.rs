@@ -36,15 +36,6 @@ pub struct Adam {
     v: Vec<Tensor>,
     /// Updates done so far.
     pub step: u64,
-    /// The moving average of the weights ([`Adam::with_average`]), if kept.
-    average: Option<Average>,
-}
-
-/// An exponential moving average of the weights: after each update
-/// `a ← β·a + (1 − β)·w`, starting from the weights it was made with.
-struct Average {
-    beta: f64,
-    weights: Vec<Tensor>,
 }
 
 impl Adam {
@@ -62,36 +53,7 @@ impl Adam {
             m,
             v,
             step: 0,
-            average: None,
         })
-    }
-
-    /// Also keep an exponential moving average of the weights with decay
-    /// `beta` (`0 < beta < 1`), from their values now.
-    pub fn with_average(mut self, beta: f64) -> Result<Adam> {
-        if !(beta > 0.0 && beta < 1.0) {
-            candle_core::bail!("the weights' average needs a decay between 0 and 1, got {beta}");
-        }
-        let weights = self
-            .vars
-            .iter()
-            .map(|(_, v)| v.as_tensor().copy())
-            .collect::<Result<Vec<_>>>()?;
-        self.average = Some(Average { beta, weights });
-        Ok(self)
-    }
-
-    /// Exchange the variables' values with the average's (a no-op without
-    /// one): call it again to get the trained weights back.
-    pub fn swap_average(&mut self) -> Result<()> {
-        if let Some(a) = &mut self.average {
-            for (w, (_, var)) in a.weights.iter_mut().zip(&self.vars) {
-                let now = var.as_tensor().copy()?;
-                var.set(w)?;
-                *w = now;
-            }
-        }
-        Ok(())
     }
 
     /// Set the learning rate of the next updates (a schedule's).
@@ -123,37 +85,23 @@ impl Adam {
             self.m[i] = m;
             self.v[i] = v;
         }
-        if let Some(a) = &mut self.average {
-            for (w, (_, var)) in a.weights.iter_mut().zip(&self.vars) {
-                *w = ((&*w * a.beta)? + (var.as_tensor() * (1.0 - a.beta))?)?;
-            }
-        }
         Ok(())
     }
 
-    /// The moments as named tensors (`NAME.adam_m`, `NAME.adam_v`), and
-    /// the weights' average where one is kept (`NAME.average`).
+    /// The moments as named tensors (`NAME.adam_m`, `NAME.adam_v`).
     pub fn state(&self) -> HashMap<String, Tensor> {
         let mut out = HashMap::new();
         for (i, (name, _)) in self.vars.iter().enumerate() {
             out.insert(format!("{name}.adam_m"), self.m[i].clone());
             out.insert(format!("{name}.adam_v"), self.v[i].clone());
-            if let Some(a) = &self.average {
-                out.insert(format!("{name}.average"), a.weights[i].clone());
-            }
         }
         out
     }
 
-    /// Restore what [`Adam::state`] saved (the average too, where this
-    /// optimiser keeps one) and the step count.
+    /// Restore what [`Adam::state`] saved and the step count.
     pub fn load_state(&mut self, tensors: &HashMap<String, Tensor>, step: u64) -> Result<()> {
         for (i, (name, var)) in self.vars.iter().enumerate() {
-            let mut slots = vec![("adam_m", &mut self.m[i]), ("adam_v", &mut self.v[i])];
-            if let Some(a) = &mut self.average {
-                slots.push(("average", &mut a.weights[i]));
-            }
-            for (suffix, slot) in slots {
+            for (suffix, slot) in [("adam_m", &mut self.m[i]), ("adam_v", &mut self.v[i])] {
                 let t = tensors.get(&format!("{name}.{suffix}")).ok_or_else(|| {
                     candle_core::Error::Msg(format!("optimiser state lacks {name}.{suffix}"))
                 })?;
@@ -188,76 +136,4 @@ pub fn clip_grad_norm(
         }
     }
     Ok(norm)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use candle_core::Device;
-
-    /// One variable `w = [1, −2]` whose gradient is `w` itself.
-    fn one_var() -> (Var, Adam) {
-        let w = Var::from_vec(vec![1f32, -2.0], 2, &Device::Cpu).expect("var");
-        let adam = Adam::new(vec![("w".into(), w.clone())], AdamConfig::default()).expect("adam");
-        (w, adam)
-    }
-
-    fn step(w: &Var, adam: &mut Adam) {
-        let grads = w.as_tensor().sqr().expect("sqr").sum_all().expect("sum");
-        let grads = (grads * 0.5).expect("half").backward().expect("backward");
-        adam.step(&grads).expect("step");
-    }
-
-    fn values(t: &Tensor) -> Vec<f32> {
-        t.to_vec1().expect("values")
-    }
-
-    #[test]
-    fn the_average_follows_each_update_and_swaps_back() {
-        let (w, adam) = one_var();
-        let mut adam = adam.with_average(0.9).expect("average");
-        // Adam's first two updates move each weight by lr against its
-        // gradient's sign: 1 → 0.999 → 0.998, −2 → −1.999 → −1.998.
-        step(&w, &mut adam);
-        step(&w, &mut adam);
-        let trained = values(w.as_tensor());
-        // a₀ = w₀; a₁ = 0.9 a₀ + 0.1 w₁; a₂ = 0.9 a₁ + 0.1 w₂.
-        let expect = |w0: f32, w1: f32, w2: f32| 0.9 * (0.9 * w0 + 0.1 * w1) + 0.1 * w2;
-        let want = [expect(1.0, 0.999, 0.998), expect(-2.0, -1.999, -1.998)];
-        adam.swap_average().expect("swap");
-        for (got, want) in values(w.as_tensor()).iter().zip(want) {
-            assert!((got - want).abs() < 1e-6, "{got} against {want}");
-        }
-        adam.swap_average().expect("swap back");
-        assert_eq!(values(w.as_tensor()), trained);
-        // Saved and restored with the moments.
-        let state = adam.state();
-        assert_eq!(values(&state["w.average"]).len(), 2);
-        let (w2, fresh) = one_var();
-        let mut fresh = fresh.with_average(0.9).expect("average");
-        fresh.load_state(&state, adam.step).expect("load");
-        fresh.swap_average().expect("swap");
-        assert_eq!(values(w2.as_tensor()), values(&state["w.average"]));
-        // A state without the average does not restore an optimiser that
-        // keeps one.
-        let (_, plain) = one_var();
-        let err = fresh
-            .load_state(&plain.state(), 0)
-            .expect_err("no average saved");
-        assert!(err.to_string().contains("w.average"), "{err}");
-    }
-
-    #[test]
-    fn an_average_needs_a_decay_between_0_and_1() {
-        for beta in [0.0, 1.0, -0.5, f64::NAN] {
-            let (_, adam) = one_var();
-            assert!(adam.with_average(beta).is_err(), "{beta}");
-        }
-        let (w, mut adam) = one_var();
-        step(&w, &mut adam);
-        let before = values(w.as_tensor());
-        adam.swap_average().expect("no average: nothing to swap");
-        assert_eq!(values(w.as_tensor()), before);
-        assert!(!adam.state().contains_key("w.average"));
-    }
 }

@@ -59,21 +59,6 @@ pub struct TrainConfig {
     /// from the seed's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inits: Option<Inits>,
-    /// Fed-back frames come in runs of this many consecutive frames
-    /// (`--feed-run`; [`feed_mask`]); `None`: each frame on its own.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub feed_run: Option<usize>,
-    /// Judge, and keep as `best`, an exponential moving average of the
-    /// weights with this decay per step instead of the weights themselves
-    /// (`--average`; [`crate::optim::Adam::with_average`]; needs
-    /// [`Select::Generation`]); None: the weights.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub average: Option<f64>,
-    /// Train on each window and on its left–right mirror image in turn
-    /// (`--mirror`; [`crate::data::Windows::mirrored`]): in epoch `e`
-    /// window `i` is mirrored when `i + e` is odd.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub mirror: bool,
     /// Train the last this many epochs with the gradient through the
     /// fed-back frames and the fed speed loss (`--rollout-last`;
     /// [`TrainConfig::late_model`]); None: none.
@@ -87,8 +72,7 @@ pub struct TrainConfig {
 }
 
 /// Weight of the fed speed loss in the epochs of
-/// [`TrainConfig::rollout_last`] when the model has none of its own
-/// (`docs/training.md`, "Through the rollout, late").
+/// [`TrainConfig::rollout_last`].
 pub const LATE_SPEED_WEIGHT: f64 = 1.0;
 
 /// Epochs each initialisation is trained before they are compared
@@ -181,9 +165,6 @@ impl TrainConfig {
             judge_stretches: None,
             condition: None,
             inits: None,
-            feed_run: None,
-            average: None,
-            mirror: false,
             rollout_last: None,
             late_root_weight: None,
         }
@@ -236,8 +217,9 @@ impl TrainConfig {
     }
 
     /// What the run adds to its model, as `train` announces it: the
-    /// condition, feed rounds at the sampling temperature, the ceiling over
-    /// the floor, a judge over several stretches (empty for none).
+    /// condition, feed rounds at the sampling temperature, the late epochs,
+    /// a judge over several stretches, several initialisations (empty for
+    /// none).
     pub fn extras(&self) -> String {
         let mut s = String::new();
         if self.condition.is_some() {
@@ -253,44 +235,14 @@ impl TrainConfig {
             (false, true) => ", fed back at the sampling temperature",
             (false, false) => "",
         };
-        if let Some(n) = self.feed_run {
-            s += &format!(", fed back in runs of {n} frames");
-        }
         if let Some(n) = self.rollout_last {
             s += &format!(", the last {n} epochs through the rollout with the fed speed loss");
             if let Some(w) = self.late_root_weight {
                 s += &format!(" and the root's motion weighed {w}");
             }
         }
-        if self.model.parts.rollout_gradient {
-            s += ", the gradient through the fed-back frames";
-        }
-        if self.model.parts.last_round_gradient {
-            s += ", the gradient through a last round of feeding back";
-        }
-        if let Some(w) = self.model.parts.swing {
-            s += &format!(", the swing loss weighed {w}");
-        }
-        if let Some(w) = self.model.parts.fed_jerk {
-            s += &format!(", the fed jerk loss weighed {w}");
-        }
-        if let Some(w) = self.model.parts.fed_speed {
-            s += &format!(", the fed speed loss weighed {w}");
-        }
-        if let Some(w) = self.model.parts.root_weight {
-            s += &format!(", the root's motion weighed {w} in the squared error");
-        }
-        if let Some(l) = self.model.parts.float_limit {
-            s += &format!(", generated figures at most {l} units off the floor");
-        }
-        if let Some(v) = self.model.parts.contact_speed {
-            s += &format!(", toes planted only below {v} m/s");
-        }
         if let Some(n) = self.judge_stretches {
             s += &format!(", judged over {n} stretches");
-        }
-        if let Some(b) = self.average {
-            s += &format!(", the weights' moving average (decay {b}) judged");
         }
         if let Some(i) = self.inits {
             s += &format!(
@@ -332,15 +284,15 @@ impl TrainConfig {
 
     /// The model's configuration in `epoch` (0-based) where it differs
     /// from [`TrainConfig::model`]: in the last [`TrainConfig::rollout_last`]
-    /// epochs, with [`crate::model::Parts::rollout_gradient`] and the fed
-    /// speed loss (the model's weight, else [`LATE_SPEED_WEIGHT`]), and the
-    /// root's weight [`TrainConfig::late_root_weight`] where given.
+    /// epochs, with [`crate::model::Parts::rollout_gradient`], the fed speed
+    /// loss weighed [`LATE_SPEED_WEIGHT`], and the root's weight
+    /// [`TrainConfig::late_root_weight`] where given.
     pub fn late_model(&self, epoch: usize) -> Option<Config> {
         let n = self.rollout_last?;
         (epoch + n >= self.epochs).then(|| {
             let mut c = self.model.clone();
             c.parts.rollout_gradient = true;
-            c.parts.fed_speed = c.parts.fed_speed.or(Some(LATE_SPEED_WEIGHT));
+            c.parts.fed_speed = Some(LATE_SPEED_WEIGHT);
             if let Some(w) = self.late_root_weight {
                 c.parts.root_weight = Some(w);
             }
@@ -357,33 +309,24 @@ impl TrainConfig {
     }
 }
 
-/// The scheduled-sampling mask of a step: `[B, T]`, from the run's seed and
-/// the step, so it is the same for any thread count and after a resume
-/// (None when `share` is 0). Each window's frames go in blocks of `run`
-/// consecutive frames (the last block may be shorter), each block fed with
-/// probability `share`: a fed run is at least `run` steps of the model's own
-/// motion deep. `run` 1 draws each frame on its own.
+/// The scheduled-sampling mask of a step: `[B, T]`, each frame fed with
+/// probability `share`, from the run's seed and the step, so it is the same
+/// for any thread count and after a resume (None when `share` is 0).
 pub fn feed_mask(
     seed: u64,
     step: u64,
     b: usize,
     t: usize,
     share: f64,
-    run: usize,
     device: &Device,
 ) -> candle_core::Result<Option<Tensor>> {
     if share <= 0.0 {
         return Ok(None);
     }
-    let run = run.max(1);
     let mut rng = Rng::new(seed ^ 0xFEED_0000_0000, step);
-    let mut v = Vec::with_capacity(b * t);
-    for _ in 0..b {
-        for start in (0..t).step_by(run) {
-            let fed = if rng.uniform() < share { 1.0f32 } else { 0.0 };
-            v.extend(std::iter::repeat_n(fed, run.min(t - start)));
-        }
-    }
+    let v: Vec<f32> = (0..b * t)
+        .map(|_| if rng.uniform() < share { 1.0 } else { 0.0 })
+        .collect();
     Tensor::from_vec(v, (b, t), device).map(Some)
 }
 
@@ -747,12 +690,62 @@ pub fn read_meta(dir: &Path) -> Result<CheckpointMeta, TrainError> {
     serde_json::from_str(&text).map_err(|e| io_err(&p, e))
 }
 
+/// The settings in the configuration of the checkpoint in `dir` that
+/// [`TrainConfig`] does not read, as JSON paths (`model.parts.swing`):
+/// options of an older version. [`read_meta`] ignores them; a resume
+/// refuses them.
+pub fn unknown_settings(dir: &Path) -> Result<Vec<String>, TrainError> {
+    use serde_json::Value;
+    /// The paths of `raw` that `known` lacks; under an object `known`
+    /// lacks altogether (one serialised only when not all default), those
+    /// whose values are not defaults (`false`, 0, null).
+    fn walk(path: &str, raw: &Value, known: Option<&Value>, out: &mut Vec<String>) {
+        let Some(raw) = raw.as_object() else {
+            return;
+        };
+        for (k, v) in raw {
+            let p = if path.is_empty() {
+                k.clone()
+            } else {
+                format!("{path}.{k}")
+            };
+            match known.map(|w| w.get(k)) {
+                Some(Some(w)) => walk(&p, v, Some(w), out),
+                _ if v.is_object() => walk(&p, v, None, out),
+                Some(None) => out.push(p),
+                None if !(v.is_null() || v == false || v.as_f64() == Some(0.0)) => out.push(p),
+                None => {}
+            }
+        }
+    }
+    let p = dir.join(layout::META);
+    let text = std::fs::read_to_string(&p).map_err(|e| io_err(&p, e))?;
+    let raw: serde_json::Value = serde_json::from_str(&text).map_err(|e| io_err(&p, e))?;
+    let meta: CheckpointMeta = serde_json::from_value(raw.clone()).map_err(|e| io_err(&p, e))?;
+    let known = serde_json::to_value(&meta.config).map_err(|e| io_err(&p, e))?;
+    let mut out = Vec::new();
+    walk("", &raw["config"], Some(&known), &mut out);
+    Ok(out)
+}
+
 /// Load a checkpoint's model (for sampling, evaluation, tests).
 pub fn load_model(dir: &Path, device: &Device) -> Result<(Trained, CheckpointMeta), TrainError> {
     let meta = read_meta(dir)?;
     let mut t = init_model(&meta.config.model, 0, device)?;
     let mp = dir.join(layout::MODEL);
-    t.varmap.load(&mp).map_err(|e| io_err(&mp, e))?;
+    t.varmap.load(&mp).map_err(|e| {
+        let unknown = unknown_settings(dir).unwrap_or_default();
+        match unknown.is_empty() {
+            true => io_err(&mp, e),
+            false => io_err(
+                &mp,
+                format!(
+                    "{e} (the checkpoint has settings this version does not read: {})",
+                    unknown.join(", ")
+                ),
+            ),
+        }
+    })?;
     Ok((t, meta))
 }
 
@@ -819,8 +812,8 @@ pub fn train(
     }
     let m = &config.model;
     for (what, size) in [
-        ("latent size (--latent)", m.latent),
-        ("LSTM hidden size (--hidden)", m.hidden),
+        ("latent size", m.latent),
+        ("LSTM hidden size", m.hidden),
         (
             "feature extractor's layer sizes (--extractor)",
             m.extractor[0].min(m.extractor[1]),
@@ -879,12 +872,6 @@ pub fn train(
         )
         .map_err(|e| TrainError::Invalid(format!("--rollout-last: {e}")))?;
     }
-    if config.average.is_some() && config.select.is_loss() {
-        return Err(TrainError::Invalid(
-            "the weights' average is what the judge keeps: --average needs --select generation"
-                .into(),
-        ));
-    }
     let judge = match config.select {
         Select::Loss => None,
         Select::Generation { every: 0 } => {
@@ -905,25 +892,9 @@ pub fn train(
             run.display()
         )));
     }
-    let both = if config.mirror {
-        let mirrored = train
-            .mirrored(stats)
-            .map_err(|e| TrainError::Invalid(e.to_string()))?;
-        let mut data = Vec::with_capacity(2 * train.data.len());
-        data.extend_from_slice(&train.data);
-        data.extend(mirrored.data);
-        Some(Windows {
-            data,
-            n: 2 * train.n,
-            ..*train
-        })
-    } else {
-        None
-    };
     let epochs = Epochs {
         data,
         train,
-        both,
         val,
         config,
         run,
@@ -936,17 +907,20 @@ pub fn train(
     let init_seed = init.as_ref().map_or(config.seed, |i| i.seed);
     let t = init_model(&config.model, init_seed, device)?;
     let mut adam = Adam::new(named_vars(&t.varmap), config.adam)?;
-    if let Some(beta) = config.average {
-        adam = adam
-            .with_average(beta)
-            .map_err(|e| TrainError::Invalid(e.to_string()))?;
-    }
     let mut history: Vec<EpochMetrics> = Vec::new();
     let mut start_epoch = 0;
     let mut best = (f64::INFINITY, 0usize);
     let mut best_generated: Option<(f64, usize)> = None;
     if resume {
         let meta = read_meta(&last_dir)?;
+        let unknown = unknown_settings(&last_dir)?;
+        if !unknown.is_empty() {
+            return Err(TrainError::Invalid(format!(
+                "{}: the checkpoint was trained with settings this version does not have ({}); it can be sampled and evaluated, not resumed",
+                last_dir.display(),
+                unknown.join(", ")
+            )));
+        }
         // Only the number of epochs may change on resume.
         let same_but_epochs = TrainConfig {
             epochs: meta.config.epochs,
@@ -1011,9 +985,6 @@ pub fn train(
             Some((j, every))
                 if (m.epoch % every == 0 && m.epoch >= config.schedule_end()) || last =>
             {
-                // The judge sees the average where one is kept, and `best`
-                // (saved below) holds it; `last` holds the weights.
-                adam.swap_average()?;
                 let v = j.judge(&t.model, device)?;
                 let better = best_generated.is_none_or(|(s, _)| v.score < s);
                 if better {
@@ -1043,9 +1014,6 @@ pub fn train(
         if chosen {
             save_checkpoint(run, layout::BEST, &t.varmap, None, &meta)?;
         }
-        if m.generated.is_some() {
-            adam.swap_average()?;
-        }
         save_checkpoint(run, layout::LAST, &t.varmap, Some(&adam), &meta)?;
         progress.epoch(&m);
         history.push(m);
@@ -1057,9 +1025,6 @@ pub fn train(
 struct Epochs<'a> {
     data: &'a Dataset,
     train: &'a Windows,
-    /// The training windows and, with `--mirror`, their mirror images
-    /// after them (`2n` windows).
-    both: Option<Windows>,
     val: Option<&'a Windows>,
     config: &'a TrainConfig,
     run: &'a Path,
@@ -1096,13 +1061,7 @@ impl Epochs<'_> {
         let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
         for chunk in perm.chunks(config.batch) {
             let step = adam.step + 1;
-            let x = match &self.both {
-                Some(both) => {
-                    let flip = |i: usize| i + train.n * ((i + epoch) % 2);
-                    both.batch(&chunk.iter().map(|&i| flip(i)).collect::<Vec<_>>(), device)?
-                }
-                None => train.batch(chunk, device)?,
-            };
+            let x = train.batch(chunk, device)?;
             let eps = noise(
                 config.seed,
                 step,
@@ -1117,7 +1076,6 @@ impl Epochs<'_> {
                 chunk.len(),
                 train.length,
                 config.feed_share(epoch),
-                config.feed_run.unwrap_or(1),
                 device,
             )?;
             let cond = match config.condition {

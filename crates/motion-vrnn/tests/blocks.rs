@@ -434,25 +434,10 @@ fn contact_loss_block() {
         std: &std,
         contact_height: 0.7,
     };
-    // With still toes: a threshold that splits the low toes into still and
-    // sliding ones.
-    let v = values(&x);
-    let raw = |r: usize, k: usize| v[r * f + k] * std[k] + mean[k];
-    let planted = |r, still| blocks::feet::planted(raw, f, t, r, still)[0];
-    let (mut still, mut sliding) = (0, 0);
-    for r in (0..b * t).filter(|&r| planted(r, None)) {
-        match planted(r, Some(2.0)) {
-            true => still += 1,
-            false => sliding += 1,
-        }
-    }
-    assert!(still > 0 && sliding > 0, "{still} still, {sliding} sliding");
-    for v in [None, Some(2.0)] {
-        let inputs = [logits.clone(), x.clone()];
-        check("contact loss", &inputs, &[0], 1e-5, 8, |t| {
-            blocks::feet::contact_loss(&t[0], &t[1], &stats, v).unwrap()
-        });
-    }
+    let inputs = [logits.clone(), x.clone()];
+    check("contact loss", &inputs, &[0], 1e-5, 8, |t| {
+        blocks::feet::contact_loss(&t[0], &t[1], &stats).unwrap()
+    });
 }
 
 /// A scalar block's value, fused and through its reference.
@@ -475,30 +460,9 @@ fn contact_loss_by_hand() {
     x[1 + 3 * 7 + 1] = 9.0;
     let x = Tensor::from_vec(x, (1, 1, 58), &Device::Cpu).unwrap();
     let logits = Tensor::new(&[[[0f32, 2.0]]], &Device::Cpu).unwrap();
-    let got = both_paths(|| blocks::feet::contact_loss(&logits, &x, &stats, None).unwrap());
+    let got = both_paths(|| blocks::feet::contact_loss(&logits, &x, &stats).unwrap());
     for g in got {
         assert!((g - (2f32.ln() + sp(2.0))).abs() < 1e-5, "{got:?}");
-    }
-    // A low toe that slides is not planted. Two frames, no root motion: the
-    // left toe stays low and still, the right toe stays low but moves 3
-    // units forward. Logits 2 give softplus(2) − 2 planted, softplus(2) not;
-    // with a still threshold of 1 unit a frame only the left toe is planted.
-    let mut x = vec![0f32; 2 * 58];
-    x[58 + 1 + 3 * 7 + 2] = 3.0;
-    let x = Tensor::from_vec(x, (1, 2, 58), &Device::Cpu).unwrap();
-    let logits = Tensor::new(&[[[2f32, 2.0], [2.0, 2.0]]], &Device::Cpu).unwrap();
-    let planted = sp(2.0) - 2.0;
-    for (still, want) in [
-        (None, 4.0 * planted),
-        (Some(1.0), 2.0 * planted + 2.0 * sp(2.0)),
-    ] {
-        let got = both_paths(|| blocks::feet::contact_loss(&logits, &x, &stats, still).unwrap());
-        for g in got {
-            assert!(
-                (g - want).abs() < 1e-5,
-                "still {still:?}: {got:?} vs {want}"
-            );
-        }
     }
 }
 

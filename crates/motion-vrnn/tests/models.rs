@@ -4,7 +4,7 @@
 
 use candle_core::{Device, Tensor, Var};
 use motion_vrnn::blocks;
-use motion_vrnn::model::{Parts, COND_WEIGHT, MODELS};
+use motion_vrnn::model::{COND_WEIGHT, MODELS};
 use motion_vrnn::rng::Rng;
 use motion_vrnn::train::{feed_mask, init_model, named_vars, noise, sharded, Trained};
 use motion_vrnn::{Config, MotionModel};
@@ -49,7 +49,7 @@ fn sorted_vars(t: &Trained) -> Vec<(String, Var)> {
 fn feed(m: &Trained, x: &Tensor) -> Option<Tensor> {
     let (b, t, _) = x.dims3().unwrap();
     let share = m.model.config().parts.self_feed;
-    feed_mask(9, 1, b, t, share, 1, &Device::Cpu).unwrap()
+    feed_mask(9, 1, b, t, share, &Device::Cpu).unwrap()
 }
 
 fn grads(t: &Trained, x: &Tensor, eps: &Tensor, w: f64) -> ((f32, f32), Vec<Vec<f32>>) {
@@ -317,12 +317,10 @@ fn one_pass_in_time_order_is_every_round() {
     }
 }
 
-/// The gradient through the rollout (`rollout_gradient`), and through its
-/// last round (`last_round_gradient`), leave the losses as they are (the
-/// same frames fed back: by the fused pass's reference, or decoded again
-/// from the states that read them) and change the gradients, which now also
-/// reach the weights through the fed frames. The first needs feeding back
-/// to every depth; the two are not taken together.
+/// The gradient through the rollout (`rollout_gradient`) leaves the losses
+/// as they are (the same frames fed back) and changes the gradients, which
+/// now also reach the weights through the fed frames. It needs feeding back
+/// to every depth.
 #[test]
 fn the_gradient_through_the_rollout_changes_the_gradients_only() {
     let mut c = model("motion", 5).model.config().clone();
@@ -339,82 +337,42 @@ fn the_gradient_through_the_rollout_changes_the_gradients_only() {
     let (x, eps) = batch(3, 8, 21);
     let ((ra, ka), ga) = grads(&with(&|_| ()), &x, &eps, 1.0);
     let d = |a: f32, b: f32| ((a - b) / a).abs();
-    for set in [
-        &(|c: &mut Config| c.parts.rollout_gradient = true) as &dyn Fn(&mut Config),
-        &|c: &mut Config| c.parts.last_round_gradient = true,
-    ] {
-        let ((rb, kb), gb) = grads(&with(set), &x, &eps, 1.0);
-        assert!(d(ra, rb) < 1e-5 && d(ka, kb) < 1e-5, "{ra} {rb} {ka} {kb}");
-        assert!(rel(&ga.concat(), &gb.concat()) > 1e-3);
-    }
+    let ((rb, kb), gb) = grads(&with(&|c| c.parts.rollout_gradient = true), &x, &eps, 1.0);
+    assert!(d(ra, rb) < 1e-5 && d(ka, kb) < 1e-5, "{ra} {rb} {ka} {kb}");
+    assert!(rel(&ga.concat(), &gb.concat()) > 1e-3);
     c.parts.rollout_gradient = true;
-    c.parts.last_round_gradient = true;
-    assert!(init_model(&c, 5, &Device::Cpu).is_err());
-    c.parts.last_round_gradient = false;
     c.parts.feed_rounds = None;
     assert!(init_model(&c, 5, &Device::Cpu).is_err());
 }
 
-/// A loss on the fed frames, set by `set`, leaves the reconstruction and KL
-/// as they are and changes the gradients (it reaches the weights through
-/// the fed frames), with or without the gradient through the rollout
-/// (`rollout`); it needs a positive weight.
-fn a_fed_loss_changes_the_gradients_only(
-    set: fn(&mut Config, Option<f64>),
-    rollout: bool,
-) -> Config {
+/// The fed speed loss (`fed_speed`), with the gradient through the rollout,
+/// leaves the reconstruction and KL as they are and changes the gradients
+/// (it reaches the weights through the fed frames); it needs a positive
+/// weight and the skeleton's statistics.
+#[test]
+fn the_fed_speed_loss_changes_the_gradients_only() {
     let mut c = model("motion", 5).model.config().clone();
     c.parts.feed_rounds = Some(0);
-    c.parts.rollout_gradient = rollout;
+    c.parts.rollout_gradient = true;
     let (x, eps) = batch(3, 8, 21);
     let with = |c: &Config, w: Option<f64>| {
         let mut c = c.clone();
-        set(&mut c, w);
+        c.parts.fed_speed = w;
         init_model(&c, 5, &Device::Cpu)
     };
     let (a, ga) = grads(&with(&c, None).unwrap(), &x, &eps, 1.0);
     let (b, gb) = grads(&with(&c, Some(1.0)).unwrap(), &x, &eps, 1.0);
     assert_eq!(a, b);
     assert!(rel(&ga.concat(), &gb.concat()) > 1e-4);
+    let t = with(&c, Some(1.0)).unwrap();
+    let l = t
+        .model
+        .losses(&x, &eps, feed(&t, &x).as_ref(), None)
+        .unwrap();
+    assert!(l.extra.to_scalar::<f32>().unwrap() > 0.0);
     assert!(with(&c, Some(0.0)).is_err() && with(&c, Some(-1.0)).is_err());
-    c
-}
-
-/// The fed jerk loss (`fed_jerk`), which needs the gradient through the
-/// rollout.
-#[test]
-fn the_fed_jerk_loss_changes_the_gradients_only() {
-    let mut c = a_fed_loss_changes_the_gradients_only(|c, w| c.parts.fed_jerk = w, true);
-    c.parts.rollout_gradient = false;
-    c.parts.fed_jerk = Some(1.0);
-    assert!(init_model(&c, 5, &Device::Cpu).is_err());
-}
-
-/// The fed speed loss (`fed_speed`), which needs the skeleton's
-/// statistics. Without the gradient through the rollout it reads the fed
-/// frames made again from the prior's draws at the states the scan
-/// reached: the same frames, so the same loss as with it.
-#[test]
-fn the_fed_speed_loss_changes_the_gradients_only() {
-    let set = |c: &mut Config, w: Option<f64>| c.parts.fed_speed = w;
-    a_fed_loss_changes_the_gradients_only(set, false);
-    let mut c = a_fed_loss_changes_the_gradients_only(set, true);
-    c.parts.fed_speed = Some(1.0);
-    let (x, eps) = batch(3, 8, 21);
-    let extra = |rollout: bool| {
-        let mut c = c.clone();
-        c.parts.rollout_gradient = rollout;
-        let t = init_model(&c, 5, &Device::Cpu).unwrap();
-        let l = t
-            .model
-            .losses(&x, &eps, feed(&t, &x).as_ref(), None)
-            .unwrap();
-        l.extra.to_scalar::<f32>().unwrap()
-    };
-    let (a, b) = (extra(true), extra(false));
-    assert!(a > 0.0 && ((a - b) / a).abs() < 1e-4, "{a} {b}");
     c.body = None;
-    assert!(init_model(&c, 5, &Device::Cpu).is_err());
+    assert!(with(&c, Some(1.0)).is_err());
 }
 
 /// The root's weight (`root_weight`) adds `(w − 1)` times the root
@@ -566,176 +524,36 @@ fn contact_sharpness_changes_the_generated_foot_lock_only() {
     }
 }
 
-/// The ceiling lowers every generated frame whose lowest joint is above
-/// the limit to it, leaves the start frames and the losses alone, and must
-/// be positive.
-#[test]
-fn the_float_limit_holds_generated_figures_down() {
-    // `model`'s statistics with every joint 10 units up: a floating figure.
-    let mut c = Config::named("motion").unwrap();
-    let mut mean = vec![0.0; 58];
-    mean[0] = 15.0;
-    for j in 0..18 {
-        mean[1 + 3 * j + 1] = 10.0;
-    }
-    let (x, _) = batch(4, 8, 100);
-    c.fit_to(
-        &mean,
-        &[2.0; 58],
-        &x.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
-    );
-    let mut m = init_model(&c, 6, &Device::Cpu).unwrap();
-    let (start, e, x8, eps) = generation_probe();
-    let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    let loss = |m: &Trained| flat(m.model.losses(&x8, &eps, None, None).unwrap().recon);
-    let body = m.model.config().body.clone().unwrap();
-    // The lowest joint's height (CMU units) of each frame of normalised rows.
-    let lowest = |v: &[f32]| -> Vec<f32> {
-        let raw = |r: &[f32], k: usize| r[k] * body.std[k] + body.mean[k];
-        v.chunks(58)
-            .map(|r| (0..18).fold(raw(r, 0), |a, j| a.min(raw(r, 1 + 3 * j + 1))))
-            .collect()
-    };
-    let plain = flat(m.model.sample(&e, Some(&start), None).unwrap());
-    let l1 = loss(&m);
-    // The generated frames of each motion (after its 3 start frames).
-    let f = 58;
-    let made = |v: &[f32]| -> Vec<f32> {
-        (0..3)
-            .flat_map(|k| lowest(&v[k * 9 * f + 3 * f..(k + 1) * 9 * f]))
-            .collect()
-    };
-    // Half the highest a generated figure rises.
-    let top = made(&plain).iter().fold(f32::MIN, |a, &b| a.max(b));
-    assert!(top > 0.2, "the untrained model does not float: {top}");
-    let limit = 0.5 * top;
-    m.model.set_float_limit(Some(limit as f64)).unwrap();
-    let held = flat(m.model.sample(&e, Some(&start), None).unwrap());
-    for k in 0..3 {
-        let row = k * 9 * f;
-        assert_eq!(held[row..row + 3 * f], plain[row..row + 3 * f]);
-    }
-    let low = made(&held);
-    assert!(
-        low.iter().all(|&y| y <= limit + 1e-3),
-        "{low:?} over {limit}"
-    );
-    assert!(held != plain, "the highest frame came down");
-    assert_eq!(loss(&m), l1);
-    assert!(m.model.set_float_limit(Some(-1.0)).is_err());
-    // Nor does a model build with one (`train --float-limit=-1`).
-    c.parts.float_limit = Some(-1.0);
-    assert!(init_model(&c, 6, &Device::Cpu).is_err());
-}
-
-/// `motion` with `set(parts, v)` at `good`: its losses differ from the
-/// plain model's in the extra terms only (not the reconstruction, the KL),
-/// its samples not at all, and a model with any of `bad` does not build.
-fn only_the_extra_terms_change(set: fn(&mut Parts, f64), good: f64, bad: &[f64]) {
-    let flat = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    let (start, e, _, _) = generation_probe();
-    let (x, eps) = batch(2, 24, 5);
-    let m = model("motion", 6);
-    let mut c = m.model.config().clone();
-    set(&mut c.parts, good);
-    let other = init_model(&c, 6, &Device::Cpu).unwrap();
-    let (a, b) = (
-        m.model.losses(&x, &eps, None, None).unwrap(),
-        other.model.losses(&x, &eps, None, None).unwrap(),
-    );
-    assert_eq!(flat(a.recon), flat(b.recon));
-    assert_eq!(flat(a.kl), flat(b.kl));
-    assert!(rel(&flat(a.extra), &flat(b.extra)) > 1e-3);
-    assert_eq!(
-        flat(m.model.sample(&e, Some(&start), None).unwrap()),
-        flat(other.model.sample(&e, Some(&start), None).unwrap())
-    );
-    for &v in bad {
-        set(&mut c.parts, v);
-        assert!(init_model(&c, 6, &Device::Cpu).is_err(), "{v}");
-    }
-}
-
-/// Planted toes that must be still (`contact_speed`) change the foot
-/// terms of the loss only; the speed must be positive.
-#[test]
-fn still_toes_change_the_foot_terms_only() {
-    only_the_extra_terms_change(|p, v| p.contact_speed = Some(v), 0.3, &[0.0, -0.3]);
-}
-
-/// The swing loss (`swing`) changes the extra terms of the loss only; its
-/// weight must be positive.
-#[test]
-fn the_swing_loss_changes_the_extra_terms_only() {
-    only_the_extra_terms_change(|p, v| p.swing = Some(v), 1.0, &[0.0, -1.0]);
-}
-
 /// The mask has the share asked for, and is a pure function of seed and step.
 #[test]
 fn feed_masks_have_their_share() {
-    let m = feed_mask(1, 2, 40, 128, 0.3, 1, &Device::Cpu)
+    let m = feed_mask(1, 2, 40, 128, 0.3, &Device::Cpu)
         .unwrap()
         .unwrap();
     let v = m.flatten_all().unwrap().to_vec1::<f32>().unwrap();
     let share = v.iter().sum::<f32>() / v.len() as f32;
     assert!((share - 0.3).abs() < 0.02, "{share}");
     assert!(v.iter().all(|&x| x == 0.0 || x == 1.0));
-    let again = feed_mask(1, 2, 40, 128, 0.3, 1, &Device::Cpu)
+    let again = feed_mask(1, 2, 40, 128, 0.3, &Device::Cpu)
         .unwrap()
         .unwrap();
     assert_eq!(v, again.flatten_all().unwrap().to_vec1::<f32>().unwrap());
-    assert!(feed_mask(1, 2, 4, 4, 0.0, 1, &Device::Cpu)
-        .unwrap()
-        .is_none());
-}
-
-/// `--feed-run 8`: each window's mask is constant over blocks of 8 frames
-/// (the last, of 4 here, too), blocks differ, and the share holds.
-#[test]
-fn fed_runs_come_in_blocks() {
-    let (b, t) = (200, 132);
-    let m = feed_mask(1, 2, b, t, 0.3, 8, &Device::Cpu)
-        .unwrap()
-        .unwrap();
-    let v = m.to_vec2::<f32>().unwrap();
-    let mut blocks = 0.0;
-    for w in &v {
-        for block in w.chunks(8) {
-            assert!(block.iter().all(|&x| x == block[0]), "{block:?}");
-            blocks += block[0];
-        }
-    }
-    let share = blocks / (b * t.div_ceil(8)) as f32;
-    assert!((share - 0.3).abs() < 0.03, "{share}");
-    assert!(v.iter().any(|w| w.contains(&1.0) && w.contains(&0.0)));
+    assert!(feed_mask(1, 2, 4, 4, 0.0, &Device::Cpu).unwrap().is_none());
 }
 
 /// The losses and gradients of a batch are bit for bit the same with 1 and
 /// 3 threads (shards are summed in order).
 #[test]
 fn results_do_not_depend_on_the_thread_count() {
-    for name in [
-        "paper",
-        "motion",
-        "every depth",
-        "through the rollout",
-        "through its last round",
-        "one step deep",
-    ] {
+    for name in ["paper", "motion", "every depth", "through the rollout"] {
         let m = match name {
-            "every depth" | "through the rollout" | "through its last round" | "one step deep" => {
+            "every depth" | "through the rollout" => {
                 let mut c = model("motion", 6).model.config().clone();
                 c.parts.feed_rounds = Some(0);
                 if name == "through the rollout" {
                     c.parts.rollout_gradient = true;
-                    c.parts.swing = Some(1.0);
-                    c.parts.fed_jerk = Some(1.0);
                     c.parts.fed_speed = Some(1.0);
-                }
-                c.parts.last_round_gradient = name == "through its last round";
-                if name == "one step deep" {
-                    // The fed speed loss without the rollout's gradient.
-                    c.parts.fed_speed = Some(1.0);
+                    c.parts.root_weight = Some(8.0);
                 }
                 init_model(&c, 6, &Device::Cpu).unwrap()
             }
@@ -1104,64 +922,6 @@ fn the_pace_is_four_means_read_where_a_category_is_asked() {
 }
 
 #[test]
-fn the_pace_can_hold_the_speed_of_motion_that_goes_back_and_forth() {
-    use motion_vrnn::model::SPEED_CENTRE_M_S;
-    let mut four = conditioned("motion", true).model.config().clone();
-    four.parts.pace = true;
-    let mut five = four.clone();
-    five.parts.pace_speed = true;
-    // The synthetic body's std is 2 (means 0): normalised velocities
-    // (1.5, 2), (0, 0), (−1.5, −2) are (3, 4), (0, 0), (−3, −4) units a
-    // frame, speeds 5, 0, 5: a mean speed of 10/3 and a mean velocity of 0.
-    let mut v = vec![0f32; 3 * 58];
-    for (t, (vx, vz)) in [(1.5f32, 2.0f32), (0.0, 0.0), (-1.5, -2.0)]
-        .into_iter()
-        .enumerate()
-    {
-        v[t * 58 + 55] = vx;
-        v[t * 58 + 56] = vz;
-    }
-    let x = Tensor::from_vec(v, (1, 3, 58), &Device::Cpu).unwrap();
-    let per_unit = 30.0 * motion_metrics::METRES_PER_UNIT;
-    let p = flat(&five.pace_of(&x).unwrap());
-    assert_eq!(p[..4], [0.0; 4]);
-    let want = 10.0 / 3.0 * per_unit - SPEED_CENTRE_M_S;
-    assert!((f64::from(p[4]) - want).abs() < 1e-5, "{} vs {want}", p[4]);
-    // Without the speed, the four means alone.
-    assert_eq!(flat(&four.pace_of(&x).unwrap()), [0.0; 4]);
-    assert_eq!(four.pace_columns() + 1, five.pace_columns());
-
-    // The table gains a row for it, the condition a column, and asking for
-    // another speed changes the motion.
-    let m = init_model(&five, 4, &Device::Cpu).unwrap();
-    assert_eq!(table(&m).dims()[0], CATEGORIES.len() + 1 + 5);
-    randomise(&m);
-    let c = m.model.config();
-    let cond = c
-        .paced(Some(&ask(&m, &[Some(1)], 1.0)), Some(&x))
-        .unwrap()
-        .unwrap();
-    assert_eq!(cond.dims(), [1, CATEGORIES.len() + 1 + 5]);
-    let faster = Tensor::new(&[[0f32, 0.0, 0.0, 0.0, p[4] + 1.0]], &Device::Cpu).unwrap();
-    let e = noise(1, 2, 6, 1, 8, &Device::Cpu).unwrap();
-    let sample = |w: &Tensor| flat(&m.model.sample(&e, Some(&x), Some(w)).unwrap());
-    assert_ne!(
-        sample(&c.asking_pace(&cond, &faster).unwrap()),
-        sample(&cond)
-    );
-    // A four-column pace is refused by the five-column model.
-    let short = Tensor::new(&[[0f32; 4]], &Device::Cpu).unwrap();
-    assert!(c
-        .asking_pace(&cond, &short)
-        .and_then(|w| m.model.sample(&e, Some(&x), Some(&w)))
-        .is_err());
-    // The speed needs the pace part.
-    let mut bare = five.clone();
-    bare.parts.pace = false;
-    assert!(init_model(&bare, 4, &Device::Cpu).is_err());
-}
-
-#[test]
 fn asking_pace_weighs_the_pace_as_paced_does() {
     let mut c = conditioned("motion", true).model.config().clone();
     c.parts.pace = true;
@@ -1425,7 +1185,7 @@ fn the_fused_gradient_through_the_rollout_matches_autograd() {
         };
         let (with, without) = (build(true), build(false));
         let (x, eps) = batch(5, 9, 12);
-        let fed = feed_mask(9, 1, 5, 9, 0.5, 1, &Device::Cpu).unwrap();
+        let fed = feed_mask(9, 1, 5, 9, 0.5, &Device::Cpu).unwrap();
         let cond = on.then(|| ask(&with, &[Some(1), Some(2), None, Some(3), Some(1)], 1.0));
         fused_matches_reference("rollout", &with, &x, &eps, fed.as_ref(), cond.as_ref());
         let grads = |m: &Trained, reference: bool| -> Vec<Vec<f32>> {

@@ -108,20 +108,6 @@ fn per_height(f: usize, body: &Stats, device: &candle_core::Device) -> Result<Te
     Tensor::new(per.as_slice(), device)
 }
 
-/// Every height of normalised rows `x: […, input]` lowered by how far the
-/// lowest joint (the root included) is above `limit` (CMU units), where it
-/// is: a figure floats no higher than `limit` (the sampling path only).
-pub fn ceiling(x: &Tensor, limit: f64, body: &Stats) -> Result<Tensor> {
-    let f = x.dim(D::Minus1)?;
-    let mut heights = vec![raw_col(x, 0, body)?];
-    for j in 0..BONES {
-        heights.push(raw_col(x, 1 + 3 * j + 1, body)?);
-    }
-    let low = Tensor::cat(&heights, D::Minus1)?.min_keepdim(D::Minus1)?;
-    let shift = (low - limit)?.relu()?;
-    x - shift.broadcast_mul(&per_height(f, body, x.device())?)?
-}
-
 /// The foot lock: frame `cur` (normalised `[…, n, input]`) with the root's
 /// planar velocity replaced by `α·v_lock + (1 − α)·v`, where `v_lock` keeps
 /// the toes of `prev` in place (each toe weighted by its contact
@@ -611,16 +597,10 @@ impl CustomOp2 for SlideOp {
 
 /// The contact loss of the foot lock: binary cross-entropy of the contact
 /// logits `[B, T, 2]` against the real contacts of `x: [B, T, F]` (1 where
-/// the real toe is below [`CONTACT_UNITS`] and, with `still`, also slides
-/// less than `still` units a frame in the world: [`planted`]), summed over
-/// windows, frames and toes. `x` gets no gradient.
-pub fn contact_loss(
-    logits: &Tensor,
-    x: &Tensor,
-    body: &Stats,
-    still: Option<f32>,
-) -> Result<Tensor> {
-    let (_, t, f) = x.dims3()?;
+/// the real toe is below [`CONTACT_UNITS`]), summed over windows, frames
+/// and toes. `x` gets no gradient.
+pub fn contact_loss(logits: &Tensor, x: &Tensor, body: &Stats) -> Result<Tensor> {
+    let (_, _, f) = x.dims3()?;
     if logits.elem_count() != (x.elem_count() / f.max(1)) * TOES.len() || body.mean.len() != f {
         candle_core::bail!(
             "contact_loss: logits {:?}, x {:?}",
@@ -628,35 +608,21 @@ pub fn contact_loss(
             x.shape()
         );
     }
-    let still = still.filter(|_| t > 1);
     if fused(logits) {
         return logits.contiguous()?.apply_op2(
             &x.contiguous()?,
             ContactOp {
                 mean: body.mean.to_vec(),
                 std: body.std.to_vec(),
-                frames: t,
-                still,
             },
         );
     }
-    // With `still`, each toe's slides (frame 0 takes frame 1's).
-    let slides = match still {
-        Some(_) => Some(toe_slides(&raw_rows(x, body)?)?),
-        None => None,
-    };
     let cols: Vec<Tensor> = TOES
         .iter()
-        .enumerate()
-        .map(|(i, &toe)| {
-            let down = raw_col(x, toe_col(toe) + 1, body)?
+        .map(|&toe| {
+            raw_col(x, toe_col(toe) + 1, body)?
                 .lt(CONTACT_UNITS)?
-                .to_dtype(DType::F32)?;
-            let (Some(v), Some(slides)) = (still, &slides) else {
-                return Ok(down);
-            };
-            let slow = slides[i].lt(v * v)?.to_dtype(DType::F32)?;
-            down * Tensor::cat(&[&slow.narrow(1, 0, 1)?, &slow], 1)?
+                .to_dtype(DType::F32)
         })
         .collect::<Result<_>>()?;
     let target = Tensor::cat(&cols, D::Minus1)?;
@@ -666,57 +632,15 @@ pub fn contact_loss(
 }
 
 /// For each of [`TOES`], whether the contact loss counts it planted in row
-/// `r` of sequences of `frames` rows read raw through `raw(row, feature)`
-/// (`f` features): below [`CONTACT_UNITS`] and, with `still` (units a
-/// frame), sliding less than that from the frame before (`real_slides`;
-/// a sequence's first frame takes its second's slide; a one-frame sequence
-/// is judged by height alone).
-pub fn planted(
-    raw: impl Fn(usize, usize) -> f32 + Copy,
-    f: usize,
-    frames: usize,
-    r: usize,
-    still: Option<f32>,
-) -> [bool; TOES.len()] {
-    let slides = still.filter(|_| frames > 1).map(|v| {
-        let cur = if r.is_multiple_of(frames) { r + 1 } else { r };
-        (real_slides(raw, f, cur - 1, cur), v)
-    });
-    std::array::from_fn(|i| {
-        let low = raw(r, toe_col(TOES[i]) + 1) < CONTACT_UNITS as f32;
-        low && slides.is_none_or(|(s, v)| s[i] < v * v)
-    })
-}
-
-/// For each of [`TOES`], its squared horizontal slide in the world (units²
-/// a frame) from frame `prev` to frame `cur` of the same sequence, read raw
-/// through `raw(frame, feature)` (`f` features, the root motion last):
-/// `v + R(θ)·p_cur − p_prev`.
-fn real_slides(
-    raw: impl Fn(usize, usize) -> f32,
-    f: usize,
-    prev: usize,
-    cur: usize,
-) -> [f32; TOES.len()] {
-    let th = raw(cur, f - 1);
-    let (c, s) = (th.cos(), th.sin());
-    TOES.map(|toe| {
-        let k = toe_col(toe);
-        let (lx, lz) = (raw(cur, k), raw(cur, k + 2));
-        let sx = raw(cur, f - 3) + c * lx + s * lz - raw(prev, k);
-        let sz = raw(cur, f - 2) - s * lx + c * lz - raw(prev, k + 2);
-        sx * sx + sz * sz
-    })
+/// `r` read raw through `raw(row, feature)`: below [`CONTACT_UNITS`].
+fn planted(raw: impl Fn(usize, usize) -> f32, r: usize) -> [bool; TOES.len()] {
+    std::array::from_fn(|i| raw(r, toe_col(TOES[i]) + 1) < CONTACT_UNITS as f32)
 }
 
 /// The fused [`contact_loss`]: inputs `(logits, x)`.
 struct ContactOp {
     mean: Vec<f32>,
     std: Vec<f32>,
-    /// Frames per sequence.
-    frames: usize,
-    /// The slide (units a frame) under which a low toe is planted.
-    still: Option<f32>,
 }
 
 impl ContactOp {
@@ -725,10 +649,7 @@ impl ContactOp {
         let f = self.mean.len();
         let raw = |r: usize, k: usize| x[r * f + k] * self.std[k] + self.mean[k];
         for r in 0..x.len() / f {
-            for (i, down) in planted(raw, f, self.frames, r, self.still)
-                .into_iter()
-                .enumerate()
-            {
+            for (i, down) in planted(raw, r).into_iter().enumerate() {
                 let at = r * TOES.len() + i;
                 g(at, logits[at], if down { 1.0 } else { 0.0 });
             }
