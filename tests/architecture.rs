@@ -167,7 +167,10 @@ fn xtask_stays_thin() {
 /// Every `.rs` file of the library crates' `src` and of `xtask/src`.
 fn source_files() -> Vec<PathBuf> {
     let mut files = Vec::new();
-    for e in std::fs::read_dir(workspace().join("crates")).unwrap().flatten() {
+    for e in std::fs::read_dir(workspace().join("crates"))
+        .unwrap()
+        .flatten()
+    {
         rust_files(&e.path().join("src"), &mut files);
     }
     rust_files(&workspace().join("xtask/src"), &mut files);
@@ -185,10 +188,16 @@ fn long_functions(text: &str, limit: usize) -> Vec<(String, usize)> {
         let line = lines[i];
         let body = line.trim_start();
         let indent = line.len() - body.len();
-        let name = ["pub fn ", "fn ", "pub(crate) fn ", "pub(super) fn ", "unsafe fn "]
-            .iter()
-            .find_map(|p| body.strip_prefix(p))
-            .map(|rest| rest.split(['(', '<']).next().unwrap_or("").to_string());
+        let name = [
+            "pub fn ",
+            "fn ",
+            "pub(crate) fn ",
+            "pub(super) fn ",
+            "unsafe fn ",
+        ]
+        .iter()
+        .find_map(|p| body.strip_prefix(p))
+        .map(|rest| rest.split(['(', '<']).next().unwrap_or("").to_string());
         match name {
             Some(name) if !body.trim_end().ends_with(';') => {
                 let end = (i + 1..lines.len()).find(|&j| {
@@ -209,7 +218,8 @@ fn long_functions(text: &str, limit: usize) -> Vec<(String, usize)> {
 
 #[test]
 fn the_function_checker_counts_from_fn_to_its_brace() {
-    let text = "fn short() {\n    1\n}\n\n    pub fn long() -> u8 {\n        a();\n        b();\n    }\n";
+    let text =
+        "fn short() {\n    1\n}\n\n    pub fn long() -> u8 {\n        a();\n        b();\n    }\n";
     assert_eq!(long_functions(text, 3), [("long".to_string(), 4)]);
     assert!(long_functions(text, 4).is_empty());
 }
@@ -219,7 +229,11 @@ fn no_source_file_over_1000_lines_and_no_function_over_100() {
     let mut bad = Vec::new();
     for f in source_files() {
         let text = std::fs::read_to_string(&f).unwrap();
-        let rel = f.strip_prefix(workspace()).unwrap_or(&f).display().to_string();
+        let rel = f
+            .strip_prefix(workspace())
+            .unwrap_or(&f)
+            .display()
+            .to_string();
         let n = text.lines().count();
         if n > 1000 {
             bad.push(format!("{rel}: {n} lines"));
@@ -241,5 +255,8 @@ fn the_readme_and_the_training_reference_stay_short() {
     let words = read("README.md").split_whitespace().count();
     assert!(words <= 1200, "README.md has {words} words (at most 1,200)");
     let lines = read("docs/training.md").lines().count();
-    assert!(lines <= 800, "docs/training.md has {lines} lines (at most 800)");
+    assert!(
+        lines <= 800,
+        "docs/training.md has {lines} lines (at most 800)"
+    );
 }

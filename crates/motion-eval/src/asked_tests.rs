@@ -163,7 +163,9 @@ fn the_page_averages_seeds_and_names_those_that_miss() {
     }
     let s = page_section(&runs, "sheet.png", &STANDARD_ASKED);
     assert!(
-        s.contains("hips speed **0.30 ± 0.14** (unasked 0.10 ± 0.00) [0.90–1.10], stride **0.50 ± 0.00**"),
+        s.contains(
+            "hips speed **0.30 ± 0.14** (unasked 0.10 ± 0.00) [0.90–1.10], stride **0.50 ± 0.00**"
+        ),
         "{s}"
     );
     // Before the contact sheet.

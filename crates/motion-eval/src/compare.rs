@@ -61,7 +61,7 @@ const CONDITIONED_WHAT: &str = "`motion` trained with `--preset standard` (condi
 pub const MINUTE: &str = "motion-minute";
 
 /// What [`MINUTE`] is, on the results page.
-const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` fed back to every depth at the sampling temperature, with `--condition category+pace --judge-stretches 14 --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96 --epochs 600 --early-stopping 0 --rollout-last 300 --late-root-weight 8`), asked as `motion-category` is and for its window's pace, held to that pace run by run (`--pace-gain`, 0.5) and each run chosen among 8 draws by its context's mean pose (`--draws`): **the default of `cargo xtask train`** ([training.md](training.md), \"The judge and the minute\", \"A wider extractor and decoder\", \"Chosen among draws\", \"Holding the pace, run by run\", \"The root weighed in the late epochs only\", \"Longer: 600 epochs\")";
+const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` fed back to every depth at the sampling temperature, with `--condition category+pace --judge-stretches 14 --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96 --epochs 600 --early-stopping 0 --rollout-last 300 --late-root-weight 8`), asked as `motion-category` is and for its context's pace, held to that pace run by run (`--pace-gain`, 0.5) and each run chosen among 8 draws by its context's mean pose (`--draws`): **the default of `cargo xtask train`** ([training.md](training.md), \"Presets\", \"The sampler\")";
 
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
@@ -201,7 +201,7 @@ const GOALS_HEADING: &str = "## Goals met (issue 11)";
 const MINUTE_ASKED: AskedModel = AskedModel {
     title: "the default model (`--preset minute`)",
     about: "`cargo xtask train`, the `minute` preset (the `standard` preset's condition with the pace as well, \
-            each motion asked for its context window's; fed back to every depth at the sampling temperature; the \
+            each motion asked for its context's; fed back to every depth at the sampling temperature; the \
             judge over the minute; the best of 3 initialisations)",
 };
 

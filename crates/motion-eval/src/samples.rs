@@ -133,11 +133,13 @@ impl Written {
         );
         line(
             "anim/*.png",
-            "animated PNG per motion (and real vs reconstruction)".into(),
+            format!(
+                "animated PNG of the first {PREVIEW_MOTIONS} motions' first {PREVIEW_FRAMES} frames (and real vs reconstruction)"
+            ),
         );
         line(
             "viewer.html",
-            "open in a browser: 3-D, orbit/pan/zoom, play/pause, speed, frame slider".into(),
+            format!("open in a browser: the first {PREVIEW_MOTIONS} motions in 3-D, orbit/pan/zoom, play/pause, speed, frame slider"),
         );
         if !self.category_sheet.is_empty() {
             let c = self.category_sheet.join(", ");
@@ -192,6 +194,21 @@ pub fn category_sheet(
 
 /// Generate `o.n` motions from the run of `spec` (each continuing
 /// `spec.context` frames of a random training window) and write them, with
+/// Motions previewed as animations and in the 3-D viewer (every motion is
+/// in the Parquet, JSON, BVH and the contact sheet).
+pub const PREVIEW_MOTIONS: usize = 12;
+
+/// Frames of each motion's animated preview (10 s at 30 fps).
+pub const PREVIEW_FRAMES: usize = 300;
+
+/// The first [`PREVIEW_FRAMES`] frames of `m`.
+fn preview(m: &Motion) -> Motion {
+    Motion {
+        id: m.id.clone(),
+        poses: m.poses.iter().take(PREVIEW_FRAMES).cloned().collect(),
+    }
+}
+
 /// `o.reconstruct` reconstructed windows of `spec.split`, into `out`.
 pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Written, EvalError> {
     if o.n == 0 || o.frames == 0 {
@@ -214,8 +231,8 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
     contact_sheet(&out.join("contact_sheet.png"), &motions, o.sheet_columns)?;
     let anim = out.join("anim");
     create_dir(&anim)?;
-    for mo in &motions {
-        animation(&anim.join(format!("{}.png", mo.id)), &[mo])?;
+    for mo in motions.iter().take(PREVIEW_MOTIONS) {
+        animation(&anim.join(format!("{}.png", mo.id)), &[&preview(mo)])?;
     }
     let bvh = out.join("bvh");
     create_dir(&bvh)?;
@@ -230,10 +247,11 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
             &format!("{}_bvh", mo.id),
         )?);
     }
+    let shown = &motions[..motions.len().min(PREVIEW_MOTIONS)];
     let mut sets = vec![MotionSet {
         name: "samples",
         group: 1,
-        motions: &motions,
+        motions: shown,
     }];
     let mut pairs = Vec::new();
     if o.reconstruct > 0 {

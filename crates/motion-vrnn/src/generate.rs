@@ -77,18 +77,14 @@ pub struct Rollout {
 
 /// How hard a motion is held to its asked pace, unless told otherwise
 /// (`--pace-gain`). A model with the pace part ([`crate::model::Parts::pace`])
-/// is asked, at every frame, for its context window's pace, and makes motion
-/// slower and stiller than it asks for (a walk at 0.64× a walk's speed; over
-/// a minute it drifts further off). So each run of at most [`PACE_EVERY`]
-/// frames is tried on its noise and its ask corrected [`PACE_CORRECTIONS`]
-/// times, each correction `gain × (target − made)`, `made` the pace of the
-/// frames that try made (an integral controller on the condition, within
-/// the run; [`crate::model::Config::asking_pace`]); the try after the last
-/// correction is kept. Chosen on `val` (seeds 0–2 of the default) over a
-/// proportional controller between runs (the default until 2026-11-29),
-/// corrections of the first run only, of the first run carried on, 0.75 and
-/// 5 corrections, then checked on nine seeds (`docs/training.md`, "Holding
-/// the pace"). Training and the judge do not use it.
+/// is asked, at every frame, for its context's pace. Each run of at most
+/// [`PACE_EVERY`] frames is tried on its noise and its ask corrected
+/// [`PACE_CORRECTIONS`] times, each correction `gain × (target − made)`,
+/// `made` the pace of the frames that try made (an integral controller on
+/// the condition, within the run; [`crate::model::Config::asking_pace`]);
+/// the try after the last correction is kept. Training and the judge do not
+/// use it (`docs/training.md`, "The sampler"; how it was chosen:
+/// `docs/experiments.md`).
 pub const PACE_GAIN: f64 = 0.5;
 
 /// Corrections of each run's asked pace before it is kept ([`PACE_GAIN`]):
@@ -100,17 +96,11 @@ pub const PACE_CORRECTIONS: usize = 3;
 pub const PACE_EVERY: usize = 128;
 
 /// Draws of noise each run of a held motion ([`PACE_GAIN`]) is chosen from,
-/// unless told otherwise (`--draws`). Held to its pace, a long motion still
-/// drifts away from the poses it started in: over a minute the motions'
-/// average poses spread apart (1.8× as far as real windows'), which is what
-/// kept the Fréchet distance above its reference. So each run is made from
-/// this many draws of noise (each held to its pace), and each motion keeps
-/// the draw whose mean pose (the mean of its normalised features over the
-/// run's frames) is closest to the mean pose of the frames it first
-/// continued: its context, nothing after it. 8 was chosen on `val` over 1
-/// and 4, then checked on nine seeds (`docs/training.md`, "Chosen among
-/// draws"). A draw is four samplings ([`PACE_CORRECTIONS`]), so 8 draws
-/// make a held motion 32 times the work of a free one.
+/// unless told otherwise (`--draws`): each draw is held to its pace, and
+/// each motion keeps the draw whose mean pose (the mean of its normalised
+/// features over the run's frames) is closest to the mean pose of its
+/// context. A draw is four samplings ([`PACE_CORRECTIONS`]), so 8 draws make
+/// a held motion 32 times the work of the model alone.
 pub const POSE_DRAWS: usize = 8;
 
 /// The gain a motion of `config`'s model is held to its pace with
@@ -121,11 +111,8 @@ pub fn held_gain(config: &crate::Config, gain: f64, asked: bool) -> Option<f64> 
 }
 
 /// The guidance scale generation asks a category at unless told otherwise
-/// (`--guidance`, [`crate::model::Config::condition`]): chosen on `val` over
-/// 1.3, 1.5 (the default before) and 1.6 with the `minute` preset's three
-/// seeds trained 600 epochs, at three sampling seeds (`docs/training.md`,
-/// "Guidance 1.4 on the 600-epoch default"). Training, its validation loss
-/// and the judge read categories at 1.
+/// (`--guidance`, [`crate::model::Config::condition`]). Training, its
+/// validation loss and the judge read categories at 1.
 pub const GUIDANCE: f64 = 1.4;
 
 /// A category asked of a conditioned model.
