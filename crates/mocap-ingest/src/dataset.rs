@@ -121,8 +121,8 @@ pub struct DatasetOptions {
     pub categories: BTreeMap<String, Category>,
     /// Compression and float encoding of the tables.
     pub encoding: Encoding,
-    /// Skip files that end inside their motion (code `truncated`), as
-    /// format 2 did, instead of keeping their complete frames with a warning.
+    /// Skip files that end inside their motion (code `truncated`) instead
+    /// of keeping their complete frames with a warning.
     pub strict: bool,
 }
 
