@@ -292,21 +292,16 @@ struct Open {
 /// become channel-less nodes without a name. A malformed hierarchy is an
 /// error here, never a panic.
 fn parse_hierarchy(header: &[u8]) -> Result<Hierarchy, ErrorKind> {
-    let mut joints: Vec<Joint> = Vec::new();
-    let mut names: Vec<Option<String>> = Vec::new();
-    let mut stack: Vec<Open> = Vec::new();
-    // A node declared (ROOT/JOINT/End Site) whose `{` has not come yet.
-    let mut pending: Option<Open> = None;
-    let mut started = false;
-    let mut finished = false;
-    let mut channels = 0usize;
-    let mut last_line = 0;
-    let node_name = |names: &[Option<String>], i: usize| -> String {
-        match &names[i] {
-            Some(n) => format!("joint {n}"),
-            None => "End Site".into(),
-        }
+    let mut h = HierarchyReader {
+        joints: Vec::new(),
+        names: Vec::new(),
+        stack: Vec::new(),
+        pending: None,
+        started: false,
+        finished: false,
+        channels: 0,
     };
+    let mut last_line = 0;
     for (ln, line) in (1..).zip(header.split(|&b| b == b'\n')) {
         let toks: Vec<&[u8]> = tokens(line).collect();
         if !toks.is_empty() {
@@ -314,204 +309,275 @@ fn parse_hierarchy(header: &[u8]) -> Result<Hierarchy, ErrorKind> {
         }
         let mut i = 0;
         while i < toks.len() {
-            let t = toks[i];
-            i += 1;
-            let err = |m: String| Err(syntax(Some(ln), m));
-            if let Some(p) = &pending {
-                if t != b"{" {
-                    return err(format!(
-                        "expected `{{` to open the {} declared at line {}, found {:?}",
-                        node_name(&names, p.node),
-                        p.line,
-                        snippet(t)
-                    ));
-                }
-            }
-            if !started {
-                if t != b"HIERARCHY" {
-                    return err(format!("expected HIERARCHY, found {:?}", snippet(t)));
-                }
-                started = true;
-                continue;
-            }
-            if finished {
+            i = h.token(ln, &toks, i)?;
+        }
+    }
+    h.finish(last_line)
+}
+
+/// The `HIERARCHY` section being read: the nodes so far and the blocks open.
+struct HierarchyReader {
+    /// Joints and End Sites in file order.
+    joints: Vec<Joint>,
+    /// Joint names; `None` for an End Site.
+    names: Vec<Option<String>>,
+    /// The blocks open, outermost first.
+    stack: Vec<Open>,
+    /// A node declared (ROOT/JOINT/End Site) whose `{` has not come yet.
+    pending: Option<Open>,
+    /// Whether `HIERARCHY` has come.
+    started: bool,
+    /// Whether the ROOT's block has closed.
+    finished: bool,
+    /// Channels declared so far.
+    channels: usize,
+}
+
+impl HierarchyReader {
+    /// `joint NAME` or `End Site`, for messages.
+    fn node_name(&self, i: usize) -> String {
+        match &self.names[i] {
+            Some(n) => format!("joint {n}"),
+            None => "End Site".into(),
+        }
+    }
+
+    /// Read the token `toks[i]` of line `ln`, with the tokens its keyword
+    /// takes after it; the index of the next token.
+    fn token(&mut self, ln: usize, toks: &[&[u8]], i: usize) -> Result<usize, ErrorKind> {
+        let t = toks[i];
+        let rest = &toks[i + 1..];
+        let err = |m: String| Err(syntax(Some(ln), m));
+        if let Some(p) = &self.pending {
+            if t != b"{" {
                 return err(format!(
-                    "unexpected {:?} after the ROOT's closing brace",
+                    "expected `{{` to open the {} declared at line {}, found {:?}",
+                    self.node_name(p.node),
+                    p.line,
                     snippet(t)
                 ));
             }
-            match t {
-                b"ROOT" | b"JOINT" => {
-                    let root = t == b"ROOT";
-                    if root && !joints.is_empty() {
-                        return err("a second ROOT (one skeleton per file is supported)".into());
-                    }
-                    if !root && stack.is_empty() {
-                        return err("JOINT outside the ROOT".into());
-                    }
-                    let parent = stack.last().map(|o| o.node);
-                    if parent.is_some_and(|p| names[p].is_none()) {
-                        return err("JOINT inside an End Site".into());
-                    }
-                    let kw = if root { "ROOT" } else { "JOINT" };
-                    let name = match toks.get(i) {
-                        Some(n) if *n != b"{" && *n != b"}" => *n,
-                        _ => return err(format!("{kw} without a name")),
-                    };
-                    i += 1;
-                    if let Some(extra) = toks.get(i).filter(|x| **x != b"{") {
-                        return err(format!(
-                            "{kw} {}: unexpected {:?} after the name",
-                            String::from_utf8_lossy(name),
-                            snippet(extra)
-                        ));
-                    }
-                    joints.push(Joint::new(parent));
-                    names.push(Some(String::from_utf8_lossy(name).into_owned()));
-                    pending = Some(Open::new(joints.len() - 1, ln));
-                }
-                b"End" => {
-                    if toks.get(i) != Some(&&b"Site"[..]) {
-                        return err("`End` must be followed by `Site`".into());
-                    }
-                    i += 1;
-                    let Some(parent) = stack.last().map(|o| o.node) else {
-                        return err("End Site outside a joint".into());
-                    };
-                    if names[parent].is_none() {
-                        return err("End Site inside an End Site".into());
-                    }
-                    joints.push(Joint::new(Some(parent)));
-                    names.push(None);
-                    pending = Some(Open::new(joints.len() - 1, ln));
-                }
-                b"{" => match pending.take() {
-                    Some(p) => stack.push(p),
-                    None => {
-                        return err("unexpected `{` (no ROOT, JOINT or End Site before it)".into())
-                    }
-                },
-                b"}" => {
-                    let Some(open) = stack.pop() else {
-                        return err("unexpected `}` (nothing is open)".into());
-                    };
-                    if !open.has_offset {
-                        return err(format!(
-                            "the {} opened at line {} has no OFFSET",
-                            node_name(&names, open.node),
-                            open.line
-                        ));
-                    }
-                    finished = stack.is_empty();
-                }
-                b"OFFSET" => {
-                    let Some(open) = stack.last_mut() else {
-                        return err("OFFSET outside a joint".into());
-                    };
-                    if open.has_offset {
-                        return err(format!(
-                            "a second OFFSET in the {}",
-                            node_name(&names, open.node)
-                        ));
-                    }
-                    let vals = &toks[i..];
-                    if vals.len() != 3 {
-                        return err(format!("OFFSET needs 3 numbers, found {}", vals.len()));
-                    }
-                    let mut o = [0.0; 3];
-                    for (v, tok) in o.iter_mut().zip(vals) {
-                        *v = parse_decimal(tok)
-                            .filter(|v| v.is_finite())
-                            .ok_or_else(|| ErrorKind::NonNumeric {
-                                line: ln,
-                                token: snippet(tok),
-                            })?;
-                    }
-                    i = toks.len();
-                    open.has_offset = true;
-                    joints[open.node].offset = o;
-                }
-                b"CHANNELS" => {
-                    let Some(open) = stack.last_mut() else {
-                        return err("CHANNELS outside a joint".into());
-                    };
-                    if names[open.node].is_none() {
-                        return err("CHANNELS in an End Site".into());
-                    }
-                    if open.has_channels {
-                        return err(format!(
-                            "a second CHANNELS in the {}",
-                            node_name(&names, open.node)
-                        ));
-                    }
-                    let count_tok = toks.get(i).copied().unwrap_or(b"");
-                    let count: usize = std::str::from_utf8(count_tok)
-                        .ok()
-                        .and_then(|s| s.parse().ok())
-                        .ok_or_else(|| ErrorKind::NonNumeric {
-                            line: ln,
-                            token: snippet(count_tok),
-                        })?;
-                    let listed = &toks[(i + 1).min(toks.len())..];
-                    if listed.len() != count {
-                        return err(format!(
-                            "CHANNELS declares {count} channels but lists {}",
-                            listed.len()
-                        ));
-                    }
-                    let joint = &mut joints[open.node];
-                    for c in listed {
-                        let (axis, position) = channel_type(c).ok_or_else(|| {
-                            syntax(Some(ln), format!("unknown channel {:?}", snippet(c)))
-                        })?;
-                        let twice = if position {
-                            joint.position[axis as usize].is_some()
-                        } else {
-                            joint.rotation.iter().any(|r| r.0 == axis)
-                        };
-                        if twice {
-                            return err(format!("channel {:?} listed twice", snippet(c)));
-                        }
-                        if position {
-                            joint.position[axis as usize] = Some(channels);
-                        } else {
-                            joint.rotation.push((axis, channels));
-                        }
-                        channels += 1;
-                    }
-                    i = toks.len();
-                    open.has_channels = true;
-                }
-                _ => return err(format!("unexpected {:?} in HIERARCHY", snippet(t))),
+        }
+        if !self.started {
+            if t != b"HIERARCHY" {
+                return err(format!("expected HIERARCHY, found {:?}", snippet(t)));
+            }
+            self.started = true;
+            return Ok(i + 1);
+        }
+        if self.finished {
+            return err(format!(
+                "unexpected {:?} after the ROOT's closing brace",
+                snippet(t)
+            ));
+        }
+        let used = match t {
+            b"ROOT" | b"JOINT" => self.joint(ln, t == b"ROOT", rest)?,
+            b"End" => self.end_site(ln, rest)?,
+            b"{" => self.open_block(ln)?,
+            b"}" => self.close_block(ln)?,
+            b"OFFSET" => self.offset(ln, rest)?,
+            b"CHANNELS" => self.channel_list(ln, rest)?,
+            _ => return err(format!("unexpected {:?} in HIERARCHY", snippet(t))),
+        };
+        Ok(i + 1 + used)
+    }
+
+    /// `ROOT name` or `JOINT name` (`rest`: the tokens after the keyword):
+    /// a node declared, its `{` to come; the tokens used (the name).
+    fn joint(&mut self, ln: usize, root: bool, rest: &[&[u8]]) -> Result<usize, ErrorKind> {
+        let err = |m: String| Err(syntax(Some(ln), m));
+        if root && !self.joints.is_empty() {
+            return err("a second ROOT (one skeleton per file is supported)".into());
+        }
+        if !root && self.stack.is_empty() {
+            return err("JOINT outside the ROOT".into());
+        }
+        let parent = self.stack.last().map(|o| o.node);
+        if parent.is_some_and(|p| self.names[p].is_none()) {
+            return err("JOINT inside an End Site".into());
+        }
+        let kw = if root { "ROOT" } else { "JOINT" };
+        let name = match rest.first() {
+            Some(n) if *n != b"{" && *n != b"}" => *n,
+            _ => return err(format!("{kw} without a name")),
+        };
+        if let Some(extra) = rest.get(1).filter(|x| **x != b"{") {
+            return err(format!(
+                "{kw} {}: unexpected {:?} after the name",
+                String::from_utf8_lossy(name),
+                snippet(extra)
+            ));
+        }
+        self.joints.push(Joint::new(parent));
+        self.names
+            .push(Some(String::from_utf8_lossy(name).into_owned()));
+        self.pending = Some(Open::new(self.joints.len() - 1, ln));
+        Ok(1)
+    }
+
+    /// `End Site` (`rest`: the tokens after `End`): a channel-less node
+    /// declared, its `{` to come; the tokens used (`Site`).
+    fn end_site(&mut self, ln: usize, rest: &[&[u8]]) -> Result<usize, ErrorKind> {
+        let err = |m: String| Err(syntax(Some(ln), m));
+        if rest.first() != Some(&&b"Site"[..]) {
+            return err("`End` must be followed by `Site`".into());
+        }
+        let Some(parent) = self.stack.last().map(|o| o.node) else {
+            return err("End Site outside a joint".into());
+        };
+        if self.names[parent].is_none() {
+            return err("End Site inside an End Site".into());
+        }
+        self.joints.push(Joint::new(Some(parent)));
+        self.names.push(None);
+        self.pending = Some(Open::new(self.joints.len() - 1, ln));
+        Ok(1)
+    }
+
+    /// `{`: the declared node's block opens; no tokens used.
+    fn open_block(&mut self, ln: usize) -> Result<usize, ErrorKind> {
+        match self.pending.take() {
+            Some(p) => self.stack.push(p),
+            None => {
+                return Err(syntax(
+                    Some(ln),
+                    "unexpected `{` (no ROOT, JOINT or End Site before it)".into(),
+                ))
             }
         }
+        Ok(0)
     }
-    let end = |m: String| Err(syntax(Some(last_line.max(1)), m));
-    if !started {
-        return end("no HIERARCHY".into());
+
+    /// `}`: the innermost block closes (it must have had its OFFSET); the
+    /// hierarchy is finished when the ROOT's does. No tokens used.
+    fn close_block(&mut self, ln: usize) -> Result<usize, ErrorKind> {
+        let err = |m: String| Err(syntax(Some(ln), m));
+        let Some(open) = self.stack.pop() else {
+            return err("unexpected `}` (nothing is open)".into());
+        };
+        if !open.has_offset {
+            return err(format!(
+                "the {} opened at line {} has no OFFSET",
+                self.node_name(open.node),
+                open.line
+            ));
+        }
+        self.finished = self.stack.is_empty();
+        Ok(0)
     }
-    if let Some(p) = pending {
-        return end(format!(
-            "the {} declared at line {} has no body",
-            node_name(&names, p.node),
-            p.line
-        ));
+
+    /// `OFFSET x y z` of the open node (`rest`: the numbers); uses the rest
+    /// of the line.
+    fn offset(&mut self, ln: usize, rest: &[&[u8]]) -> Result<usize, ErrorKind> {
+        let err = |m: String| Err(syntax(Some(ln), m));
+        let Some(open) = self.stack.last_mut() else {
+            return err("OFFSET outside a joint".into());
+        };
+        if open.has_offset {
+            let node = open.node;
+            return err(format!("a second OFFSET in the {}", self.node_name(node)));
+        }
+        if rest.len() != 3 {
+            return err(format!("OFFSET needs 3 numbers, found {}", rest.len()));
+        }
+        let mut o = [0.0; 3];
+        for (v, tok) in o.iter_mut().zip(rest) {
+            *v = parse_decimal(tok)
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| ErrorKind::NonNumeric {
+                    line: ln,
+                    token: snippet(tok),
+                })?;
+        }
+        open.has_offset = true;
+        self.joints[open.node].offset = o;
+        Ok(rest.len())
     }
-    if let Some(open) = stack.last() {
-        return end(format!(
-            "the hierarchy ends inside the {} opened at line {} (a `}}` is missing)",
-            node_name(&names, open.node),
-            open.line
-        ));
+
+    /// `CHANNELS n c1 … cn` of the open joint (`rest`: the count and the
+    /// names), each channel numbered in file order; uses the rest of the
+    /// line.
+    fn channel_list(&mut self, ln: usize, rest: &[&[u8]]) -> Result<usize, ErrorKind> {
+        let err = |m: String| Err(syntax(Some(ln), m));
+        let Some(open) = self.stack.last_mut() else {
+            return err("CHANNELS outside a joint".into());
+        };
+        if self.names[open.node].is_none() {
+            return err("CHANNELS in an End Site".into());
+        }
+        if open.has_channels {
+            let node = open.node;
+            return err(format!("a second CHANNELS in the {}", self.node_name(node)));
+        }
+        let count_tok = rest.first().copied().unwrap_or(b"");
+        let count: usize = std::str::from_utf8(count_tok)
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| ErrorKind::NonNumeric {
+                line: ln,
+                token: snippet(count_tok),
+            })?;
+        let listed = &rest[1.min(rest.len())..];
+        if listed.len() != count {
+            return err(format!(
+                "CHANNELS declares {count} channels but lists {}",
+                listed.len()
+            ));
+        }
+        let joint = &mut self.joints[open.node];
+        for c in listed {
+            let (axis, position) = channel_type(c)
+                .ok_or_else(|| syntax(Some(ln), format!("unknown channel {:?}", snippet(c))))?;
+            let twice = if position {
+                joint.position[axis as usize].is_some()
+            } else {
+                joint.rotation.iter().any(|r| r.0 == axis)
+            };
+            if twice {
+                return err(format!("channel {:?} listed twice", snippet(c)));
+            }
+            if position {
+                joint.position[axis as usize] = Some(self.channels);
+            } else {
+                joint.rotation.push((axis, self.channels));
+            }
+            self.channels += 1;
+        }
+        open.has_channels = true;
+        Ok(rest.len())
     }
-    if joints.is_empty() {
-        return end("no ROOT".into());
+
+    /// The hierarchy read, if it is complete (`last_line`: the section's last
+    /// non-blank line, for messages).
+    fn finish(self, last_line: usize) -> Result<Hierarchy, ErrorKind> {
+        let end = |m: String| Err(syntax(Some(last_line.max(1)), m));
+        if !self.started {
+            return end("no HIERARCHY".into());
+        }
+        if let Some(p) = &self.pending {
+            return end(format!(
+                "the {} declared at line {} has no body",
+                self.node_name(p.node),
+                p.line
+            ));
+        }
+        if let Some(open) = self.stack.last() {
+            return end(format!(
+                "the hierarchy ends inside the {} opened at line {} (a `}}` is missing)",
+                self.node_name(open.node),
+                open.line
+            ));
+        }
+        if self.joints.is_empty() {
+            return end("no ROOT".into());
+        }
+        Ok(Hierarchy {
+            joints: self.joints,
+            names: self.names,
+            channels: self.channels,
+        })
     }
-    Ok(Hierarchy {
-        joints,
-        names,
-        channels,
-    })
 }
 
 impl Joint {
@@ -624,24 +690,12 @@ struct MotionTable {
     truncation: Option<Truncation>,
 }
 
-/// Parse the motion section starting at 1-based line `motion_line`
-/// (`MOTION`, `Frames: N`, `Frame Time: S`, then N lines of `channels` values),
-/// checking every line. A file cut short (fewer lines than `Frames:` says, a
-/// short last line, or a last value cut at the very end of the file) keeps
-/// its complete frames and says so in `truncation`; damage anywhere else is
-/// an error.
-fn parse_motion(
-    bytes: &[u8],
-    motion_line: usize,
-    channels: usize,
-    owner: impl Fn(usize) -> String,
-) -> Result<MotionTable, ErrorKind> {
-    let mut lines = bytes
-        .split(|&b| b == b'\n')
-        .enumerate()
-        .skip(motion_line)
-        .map(|(i, l)| (i + 1, l))
-        .filter(|(_, l)| !l.trim_ascii().is_empty());
+/// The `Frames: N` and `Frame Time: S` lines that open the motion section
+/// (`lines`: its non-blank lines with their numbers, after `MOTION`): the
+/// frame count, the seconds per frame, and the second line's number.
+fn motion_header<'b>(
+    lines: &mut impl Iterator<Item = (usize, &'b [u8])>,
+) -> Result<(usize, f64, usize), ErrorKind> {
     let (n, frames_line) = lines
         .next()
         .ok_or_else(|| syntax(None, "missing `Frames:` line after MOTION".into()))?;
@@ -666,7 +720,28 @@ fn parse_motion(
         .and_then(|s| s.parse::<f64>().ok())
         .filter(|t| t.is_finite() && *t > 0.0)
         .ok_or_else(|| syntax(Some(n), "expected `Frame Time: SECONDS` (positive)".into()))?;
+    Ok((frames, frame_time, n))
+}
 
+/// Parse the motion section starting at 1-based line `motion_line`
+/// (`MOTION`, `Frames: N`, `Frame Time: S`, then N lines of `channels` values),
+/// checking every line. A file cut short (fewer lines than `Frames:` says, a
+/// short last line, or a last value cut at the very end of the file) keeps
+/// its complete frames and says so in `truncation`; damage anywhere else is
+/// an error.
+fn parse_motion(
+    bytes: &[u8],
+    motion_line: usize,
+    channels: usize,
+    owner: impl Fn(usize) -> String,
+) -> Result<MotionTable, ErrorKind> {
+    let mut lines = bytes
+        .split(|&b| b == b'\n')
+        .enumerate()
+        .skip(motion_line)
+        .map(|(i, l)| (i + 1, l))
+        .filter(|(_, l)| !l.trim_ascii().is_empty());
+    let (frames, frame_time, n) = motion_header(&mut lines)?;
     // Never trust `Frames:` for memory: each value takes at least two bytes.
     let mut values = Vec::with_capacity((frames * channels).min(bytes.len() / 2));
     let mut found = 0usize;

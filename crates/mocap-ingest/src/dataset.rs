@@ -7,28 +7,21 @@
 //! the thread count. The split of a take (or subject) is a hash of the seed
 //! and its id, so adding a take never moves another.
 
-use crate::category::{self, Category, CategoryTable};
-use crate::features::{feature_names, NUM_FEATURES};
-use crate::source::{FileRef, Source, TakeInput};
-use crate::{process_take_with, Clip, ErrorKind, IngestError, Options};
-use arrow_array::{ArrayRef, Float32Array, RecordBatch, StringArray, UInt32Array};
-use arrow_schema::{DataType, Field, Schema, SchemaRef};
-use parquet::arrow::ArrowWriter;
-use parquet::basic::{Compression, ZstdLevel};
-use parquet::file::properties::WriterProperties;
-use parquet::schema::types::ColumnPath;
-use rayon::prelude::*;
+mod read;
+mod report;
+#[cfg(test)]
+mod tests;
+mod write;
+
+use crate::category::Category;
+use crate::source::{FileRef, Source};
+use crate::Options;
+use read::{read_all, stats_of, Copy, Group, Tally};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
-use std::fs::File;
-use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-
-/// Takes processed per parallel chunk. Fixed, so output never depends on the
-/// number of threads; small, so memory holds a few files at a time.
-const CHUNK: usize = 16;
+use write::{manifest, write_err, write_json, write_takes, write_windows};
 
 /// Version of the dataset layout written here (2: take ids from paths for
 /// non-CMU names, `take` and `kept` in `skipped.json`, Zstandard; 3: files
@@ -128,8 +121,8 @@ pub struct DatasetOptions {
     pub categories: BTreeMap<String, Category>,
     /// Compression and float encoding of the tables.
     pub encoding: Encoding,
-    /// Skip files that end inside their motion (code `truncated`), as
-    /// format 2 did, instead of keeping their complete frames with a warning.
+    /// Skip files that end inside their motion (code `truncated`) instead
+    /// of keeping their complete frames with a warning.
     pub strict: bool,
 }
 
@@ -304,20 +297,6 @@ pub struct BuildSummary {
     pub warnings: Vec<Warning>,
 }
 
-#[derive(Serialize)]
-struct InputFile {
-    path: String,
-    size: u64,
-    sha256: String,
-}
-
-#[derive(Serialize)]
-struct OutputFile {
-    path: String,
-    size: u64,
-    sha256: String,
-}
-
 /// Per-feature statistics of the train split.
 #[derive(Clone, Debug, Serialize, serde::Deserialize, PartialEq)]
 pub struct Stats {
@@ -372,222 +351,6 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-/// One copy of a take: a source's file, with where it comes from.
-struct Copy<'a> {
-    source: &'a Source,
-    /// Index of `source` among the build's sources (selects the reader).
-    source_index: usize,
-    take: TakeInput,
-    /// The motion file's portable name.
-    file: String,
-}
-
-/// All copies of one take id, the preferred first (ASF/AMC, then path order).
-struct Group<'a> {
-    copies: Vec<Copy<'a>>,
-}
-
-/// One copy read (successfully or not).
-struct Attempt {
-    result: Result<Clip, IngestError>,
-    /// Every file read: portable name, size, SHA-256.
-    inputs: Vec<InputFile>,
-}
-
-/// A group after reading: the attempts, in the order of the copies (copies
-/// after the last attempt were not read), and which one is kept.
-struct GroupDone {
-    attempts: Vec<Attempt>,
-    kept: Option<usize>,
-}
-
-/// Open readers of one worker, one per source (opened on first use).
-type Readers = Vec<Option<crate::source::SourceReader>>;
-
-fn run_copy(copy: &Copy, readers: &mut Readers, opts: &Options, strict: bool) -> Attempt {
-    let mut inputs = Vec::new();
-    let slot = &mut readers[copy.source_index];
-    let reader = match slot {
-        Some(r) => Ok(r),
-        None => copy
-            .source
-            .reader()
-            .map(|r| slot.insert(r))
-            .map_err(|e| IngestError::new(&copy.file, ErrorKind::Io(std::io::Error::other(e)))),
-    };
-    let result = reader.and_then(|reader| {
-        // Every file read is recorded (size, SHA-256) for the manifest.
-        let read = |f: &FileRef| {
-            let bytes = reader.read_file(f)?;
-            inputs.push(InputFile {
-                path: copy.source.portable_file(f),
-                size: bytes.len() as u64,
-                sha256: sha256_hex(&bytes),
-            });
-            Ok(bytes)
-        };
-        process_take_with(&copy.take, |f| copy.source.portable_file(f), read, opts)
-    });
-    // Strict: a file cut short is refused, as in format 2.
-    let result = result.and_then(|clip| match clip.truncation {
-        Some(t) if strict => Err(IngestError::new(&copy.file, t.to_error())),
-        _ => Ok(clip),
-    });
-    Attempt { result, inputs }
-}
-
-/// Read the copies of a take in order of preference until one succeeds. A
-/// copy retargeted onto another figure (Daz-friendly BVH) or cut short (the
-/// file ends inside its motion) is kept only if no later copy reads whole
-/// with the subject's own skeleton.
-fn run_group(
-    group: &Group,
-    readers: &mut Readers,
-    opts: &DatasetOptions,
-    progress: &dyn Progress,
-) -> GroupDone {
-    let mut attempts = Vec::new();
-    let mut kept = None;
-    for copy in &group.copies {
-        let a = run_copy(copy, readers, &opts.ingest, opts.strict);
-        progress.file_done(&copy.file, a.result.is_ok());
-        let whole = match &a.result {
-            Ok(clip) => clip.skeleton != crate::SkeletonKind::Daz && clip.truncation.is_none(),
-            Err(_) => false,
-        };
-        if (a.result.is_ok() && kept.is_none()) || whole {
-            kept = Some(attempts.len());
-        }
-        attempts.push(a);
-        if whole {
-            break;
-        }
-    }
-    for rest in &group.copies[attempts.len()..] {
-        progress.file_done(&rest.file, false);
-    }
-    GroupDone { attempts, kept }
-}
-
-/// Streaming mean/variance (Chan et al. merge), combined in a fixed order.
-#[derive(Clone)]
-struct Moments {
-    n: f64,
-    mean: [f64; NUM_FEATURES],
-    m2: [f64; NUM_FEATURES],
-}
-
-impl Moments {
-    fn new() -> Self {
-        Moments {
-            n: 0.0,
-            mean: [0.0; NUM_FEATURES],
-            m2: [0.0; NUM_FEATURES],
-        }
-    }
-
-    fn add(&mut self, x: &[f64; NUM_FEATURES], weight: f64) {
-        if weight == 0.0 {
-            return;
-        }
-        let n = self.n + weight;
-        for ((&xi, mean), m2) in x.iter().zip(&mut self.mean).zip(&mut self.m2) {
-            let d = xi - *mean;
-            *mean += d * weight / n;
-            *m2 += weight * d * (xi - *mean);
-        }
-        self.n = n;
-    }
-}
-
-fn write_err(path: &Path, e: impl std::fmt::Display) -> DatasetError {
-    DatasetError::Write {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    }
-}
-
-fn parquet_writer(
-    path: &Path,
-    schema: SchemaRef,
-    encoding: Encoding,
-) -> Result<ArrowWriter<OutWriter>, DatasetError> {
-    let file = create_out(path)?;
-    let (compression, split_floats) = match encoding {
-        Encoding::Snappy => (Compression::SNAPPY, false),
-        Encoding::SnappyByteStreamSplit => (Compression::SNAPPY, true),
-        Encoding::Zstd => (Compression::ZSTD(ZstdLevel::default()), false),
-        Encoding::ZstdByteStreamSplit => (Compression::ZSTD(ZstdLevel::default()), true),
-    };
-    // Dictionaries only for the repeated id strings; for float features they
-    // cost time (interning every value) and save nothing.
-    let mut props = WriterProperties::builder()
-        .set_compression(compression)
-        .set_dictionary_enabled(false)
-        .set_column_dictionary_enabled(ColumnPath::from("take"), true)
-        .set_column_dictionary_enabled(ColumnPath::from("subject"), true)
-        .set_column_dictionary_enabled(ColumnPath::from("split"), true)
-        .set_max_row_group_row_count(Some(64 * 1024))
-        .set_created_by(format!("mocap-ingest {}", env!("CARGO_PKG_VERSION")));
-    if split_floats {
-        for f in schema.fields() {
-            if f.data_type() == &DataType::Float32 {
-                props = props.set_column_encoding(
-                    ColumnPath::from(f.name().as_str()),
-                    parquet::basic::Encoding::BYTE_STREAM_SPLIT,
-                );
-            }
-        }
-    }
-    let props = props.build();
-    ArrowWriter::try_new(file, schema, Some(props)).map_err(|e| write_err(path, e))
-}
-
-fn frames_schema() -> SchemaRef {
-    let mut fields = vec![
-        Field::new("take", DataType::Utf8, false),
-        Field::new("subject", DataType::Utf8, false),
-        Field::new("frame", DataType::UInt32, false),
-    ];
-    for n in feature_names() {
-        fields.push(Field::new(n, DataType::Float32, false));
-    }
-    Arc::new(Schema::new(fields))
-}
-
-fn frames_batch(
-    schema: &SchemaRef,
-    clips: &[(&Clip, &str)],
-) -> Result<RecordBatch, arrow_schema::ArrowError> {
-    let rows: usize = clips.iter().map(|c| c.0.features.len()).sum();
-    let mut take = Vec::with_capacity(rows);
-    let mut subject = Vec::with_capacity(rows);
-    let mut frame = Vec::with_capacity(rows);
-    let mut cols: Vec<Vec<f32>> = (0..NUM_FEATURES)
-        .map(|_| Vec::with_capacity(rows))
-        .collect();
-    for (c, subj) in clips {
-        for (t, f) in c.features.iter().enumerate() {
-            take.push(c.take_id.as_str());
-            subject.push(*subj);
-            frame.push(t as u32);
-            for (i, col) in cols.iter_mut().enumerate() {
-                col.push(f[i] as f32);
-            }
-        }
-    }
-    let mut arrays: Vec<ArrayRef> = vec![
-        Arc::new(StringArray::from(take)),
-        Arc::new(StringArray::from(subject)),
-        Arc::new(UInt32Array::from(frame)),
-    ];
-    arrays.extend(
-        cols.into_iter()
-            .map(|c| Arc::new(Float32Array::from(c)) as ArrayRef),
-    );
-    RecordBatch::try_new(schema.clone(), arrays)
-}
-
 /// Progress events for a caller's progress bar.
 pub trait Progress: Sync {
     /// Called once with the number of motion files.
@@ -614,6 +377,37 @@ pub fn build_dataset(
     progress: &dyn Progress,
 ) -> Result<BuildSummary, DatasetError> {
     validate(opts)?;
+    let copies = list_copies(sources)?;
+    let files = copies.len();
+    let mut summary = BuildSummary {
+        files,
+        ..Default::default()
+    };
+    progress.start(files);
+    let copies = leave_out_excluded(copies, opts, &mut summary, progress);
+    let groups = group_copies(copies);
+    let staging = make_staging(out)?;
+    let result = write_all(
+        &groups,
+        fallback_asf_name(sources),
+        sources.len(),
+        &staging,
+        opts,
+        progress,
+        &mut summary,
+        source_labels,
+    );
+    if let Err(e) = result {
+        let _ = std::fs::remove_dir_all(&staging);
+        return Err(e);
+    }
+    swap_into_place(&staging, out)?;
+    Ok(summary)
+}
+
+/// Every motion file of every source as a copy of its take, colliding
+/// non-CMU ids qualified ([`qualify_colliding_ids`]).
+fn list_copies(sources: &[Source]) -> Result<Vec<Copy<'_>>, DatasetError> {
     let mut copies: Vec<Copy> = Vec::new();
     for (source_index, source) in sources.iter().enumerate() {
         for take in source.takes()? {
@@ -626,14 +420,18 @@ pub fn build_dataset(
         }
     }
     qualify_colliding_ids(&mut copies);
-    let files = copies.len();
-    let mut summary = BuildSummary {
-        files,
-        ..Default::default()
-    };
-    progress.start(files);
+    Ok(copies)
+}
 
-    // Excluded takes are not read.
+/// The copies whose take is not in the exclude list; the others are
+/// recorded as skipped (`excluded`, unread) with the list's ids that
+/// matched no take.
+fn leave_out_excluded<'a>(
+    copies: Vec<Copy<'a>>,
+    opts: &DatasetOptions,
+    summary: &mut BuildSummary,
+    progress: &dyn Progress,
+) -> Vec<Copy<'a>> {
     let (excluded, copies): (Vec<Copy>, Vec<Copy>) = copies
         .into_iter()
         .partition(|c| opts.exclude.contains(&c.take.take_id));
@@ -655,10 +453,13 @@ pub fn build_dataset(
             kept: None,
         });
     }
+    copies
+}
 
-    // Copies of one take (the same id) form a group, the preferred copy
-    // first: ASF/AMC (CMU's original), then the first in path order.
-    let mut copies = copies;
+/// Copies of one take (the same id) as one group, groups in take order, the
+/// preferred copy first in each: ASF/AMC (CMU's original), then the first in
+/// path order.
+fn group_copies(mut copies: Vec<Copy<'_>>) -> Vec<Group<'_>> {
     copies.sort_by(|a, b| {
         (&a.take.take_id, std::cmp::Reverse(a.take.format), &a.file).cmp(&(
             &b.take.take_id,
@@ -673,7 +474,12 @@ pub fn build_dataset(
             _ => groups.push(Group { copies: vec![c] }),
         }
     }
+    groups
+}
 
+/// A fresh, empty staging directory beside `out` (`.NAME.tmp-PID`), those
+/// left by killed runs removed.
+fn make_staging(out: &Path) -> Result<PathBuf, DatasetError> {
     let parent = out
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -690,7 +496,11 @@ pub fn build_dataset(
         std::fs::remove_dir_all(&staging).map_err(|e| write_err(&staging, e))?;
     }
     std::fs::create_dir_all(&staging).map_err(|e| write_err(&staging, e))?;
-    // The fallback skeleton's file name (one per build in practice).
+    Ok(staging)
+}
+
+/// The fallback skeleton's file name (`--asf`; one per build in practice).
+fn fallback_asf_name(sources: &[Source]) -> Option<String> {
     let asf: BTreeSet<String> = sources
         .iter()
         .filter_map(|s| {
@@ -698,22 +508,7 @@ pub fn build_dataset(
                 .map(|p| s.portable_file(&FileRef::External(p.into())))
         })
         .collect();
-    let result = write_all(
-        &groups,
-        asf.into_iter().next(),
-        sources.len(),
-        &staging,
-        opts,
-        progress,
-        &mut summary,
-        source_labels,
-    );
-    if let Err(e) = result {
-        let _ = std::fs::remove_dir_all(&staging);
-        return Err(e);
-    }
-    swap_into_place(&staging, out)?;
-    Ok(summary)
+    asf.into_iter().next()
 }
 
 /// Non-CMU ids come from paths inside a collection, so two collections can
@@ -797,238 +592,8 @@ fn remove_stale(parent: &Path, name: &str) {
     }
 }
 
-/// What the build accumulates, group by group in take order.
-struct Tally<'o> {
-    opts: &'o DatasetOptions,
-    summary: &'o mut BuildSummary,
-    takes_rows: Vec<TakeRow>,
-    windows_rows: Vec<(String, u32, usize)>,
-    inputs: BTreeMap<String, InputFile>,
-    moments: Moments,
-    /// Kept takes by the hashes of the files they were read from: the same
-    /// bytes under two ids are one take.
-    kept_content: HashMap<Vec<String>, (String, String)>,
-}
-
-impl Tally<'_> {
-    fn skip(&mut self, file: &str, take: &str, code: &str, message: String, kept: Option<&str>) {
-        self.summary.skipped.push(Skipped {
-            file: file.to_string(),
-            take: take.to_string(),
-            code: code.to_string(),
-            message,
-            kept: kept.map(str::to_string),
-        });
-    }
-
-    /// Account for one group: every file read, every copy not kept (and
-    /// why), duplicates; returns the kept take's clip and subject, if any.
-    fn group<'g>(&mut self, group: &'g Group, d: &'g GroupDone) -> Option<(&'g Clip, &'g str)> {
-        let id = &group.copies[0].take.take_id;
-        let kept = d.kept.map(|i| &group.copies[i]);
-        let k = kept.map(|c| c.file.as_str());
-        if group.copies.len() > 1 {
-            let dup = &mut self.summary.duplicates;
-            dup.takes += 1;
-            if let (Some(copy), Some(i)) = (kept, d.kept) {
-                *dup.kept_by_format
-                    .entry(copy.take.format.as_str().to_string())
-                    .or_default() += 1;
-                dup.fell_back += usize::from(d.attempts[..i].iter().any(|a| a.result.is_err()));
-            }
-            dup.unread += group.copies.len() - d.attempts.len();
-        }
-        for (i, (copy, a)) in group.copies.iter().zip(&d.attempts).enumerate() {
-            for f in &a.inputs {
-                self.inputs.entry(f.path.clone()).or_insert(InputFile {
-                    path: f.path.clone(),
-                    size: f.size,
-                    sha256: f.sha256.clone(),
-                });
-            }
-            let kept_name = k.unwrap_or_default();
-            match &a.result {
-                _ if d.kept == Some(i) => {}
-                Err(e) => {
-                    let message = match k {
-                        Some(k) => format!("{e} (take {id} was read from {k} instead)"),
-                        None => e.to_string(),
-                    };
-                    self.skip(&e.file, id, e.code(), message, k);
-                }
-                Ok(clip) => {
-                    let kept_clip = d
-                        .kept
-                        .and_then(|j| d.attempts.get(j))
-                        .and_then(|a| a.result.as_ref().ok());
-                    let kept_own =
-                        kept_clip.is_some_and(|c| c.skeleton != crate::SkeletonKind::Daz);
-                    let why = match clip.truncation {
-                        Some(t) if !(kept_own && clip.skeleton == crate::SkeletonKind::Daz) => {
-                            self.summary.duplicates.truncated_yielded += 1;
-                            let other = if kept_clip.is_some_and(|c| c.truncation.is_none()) {
-                                "is complete"
-                            } else {
-                                "was read first"
-                            };
-                            format!(
-                                "it ends inside its motion ({} of {} frames) and \
-                                 the copy {kept_name} {other}",
-                                t.frames_kept(),
-                                t.frames_expected()
-                            )
-                        }
-                        _ => {
-                            self.summary.duplicates.superseded += 1;
-                            format!("the copy {kept_name} has the subject's own skeleton")
-                        }
-                    };
-                    let message = format!(
-                        "{}: duplicate take {id}, read but not kept: {why}",
-                        copy.file
-                    );
-                    self.skip(&copy.file, id, "duplicate_take", message, k);
-                }
-            }
-        }
-        for copy in &group.copies[d.attempts.len()..] {
-            let message = format!(
-                "{}: duplicate take {id}, not read: the copy {} was read",
-                copy.file,
-                k.unwrap_or_default()
-            );
-            self.skip(&copy.file, id, "duplicate_take", message, k);
-        }
-        let i = d.kept?;
-        let (copy, attempt) = (&group.copies[i], &d.attempts[i]);
-        let clip = attempt.result.as_ref().ok()?;
-        let content: Vec<String> = attempt.inputs.iter().map(|f| f.sha256.clone()).collect();
-        if let Some((other, other_file)) = self.kept_content.get(&content).cloned() {
-            let message = format!(
-                "{}: the same bytes as {other_file}, already in the dataset as take {other}",
-                copy.file
-            );
-            self.skip(&copy.file, id, "duplicate_file", message, Some(&other_file));
-            return None;
-        }
-        self.kept_content
-            .insert(content, (id.clone(), copy.file.clone()));
-        if let Some(t) = &clip.truncation {
-            self.summary
-                .warnings
-                .push(Warning::truncated(&copy.file, &clip.take_id, t));
-        }
-        self.add_take(copy, clip);
-        Some((clip, copy.take.subject.as_str()))
-    }
-
-    /// A take goes in: its split, windows, statistics, rows and counts.
-    fn add_take(&mut self, copy: &Copy, clip: &Clip) {
-        let (opts, summary) = (self.opts, &mut *self.summary);
-        let subject = copy.take.subject.as_str();
-        let key = match opts.split_by {
-            SplitBy::Take => clip.take_id.as_str(),
-            SplitBy::Subject => subject,
-        };
-        let split = split_of(key, opts.seed, opts.fractions);
-        let starts = window_starts(clip.features.len(), opts.window, opts.stride);
-        if starts.is_empty() {
-            summary.short_takes += 1;
-        }
-        if split == 0 {
-            // Multiplicity of each frame in the train windows.
-            let mut mult = vec![0u32; clip.features.len()];
-            for &s in &starts {
-                mult[s..s + opts.window].iter_mut().for_each(|m| *m += 1);
-            }
-            for (f, &m) in clip.features.iter().zip(&mult) {
-                self.moments.add(f, m as f64);
-            }
-        }
-        summary.takes += 1;
-        summary.takes_per_split[split] += 1;
-        summary.windows_per_split[split] += starts.len();
-        summary.frames += clip.features.len();
-        summary.native_frames += clip.native_frames;
-        let format = copy.take.format.as_str();
-        *summary
-            .takes_by_skeleton
-            .entry((format.to_string(), clip.skeleton.name().to_string()))
-            .or_default() += 1;
-        for &s in &starts {
-            self.windows_rows
-                .push((clip.take_id.clone(), s as u32, split));
-        }
-        let (category, description) =
-            category::resolve(&clip.take_id, &opts.categories, CategoryTable::cmu());
-        self.takes_rows.push(TakeRow {
-            category: category.name(),
-            description: description.map(String::from),
-            take: clip.take_id.clone(),
-            subject: subject.to_string(),
-            file: copy.file.clone(),
-            format,
-            skeleton: clip.skeleton.name(),
-            source_fps: clip.source_fps,
-            native_frames: clip.native_frames as u32,
-            frames: clip.features.len() as u32,
-            split,
-        });
-    }
-}
-
-/// Read every group, chunk by chunk in parallel, accounting for each in take
-/// order; `frames.parquet` is encoded, compressed and written on its own
-/// thread, batch by batch in that order, while the next chunk is read.
-fn read_all(
-    groups: &[Group],
-    num_sources: usize,
-    frames_path: &Path,
-    tally: &mut Tally,
-    progress: &dyn Progress,
-) -> Result<OutputFile, DatasetError> {
-    let opts = tally.opts;
-    let schema = frames_schema();
-    std::thread::scope(|scope| {
-        let (tx, rx) = std::sync::mpsc::sync_channel::<RecordBatch>(2);
-        let writer = {
-            let schema = schema.clone();
-            scope.spawn(move || -> Result<OutputFile, DatasetError> {
-                let mut w = parquet_writer(frames_path, schema, opts.encoding)?;
-                for batch in rx {
-                    w.write(&batch).map_err(|e| write_err(frames_path, e))?;
-                }
-                let inner = w.into_inner().map_err(|e| write_err(frames_path, e))?;
-                finish_file(inner, frames_path)
-            })
-        };
-        for chunk in groups.chunks(CHUNK) {
-            let done: Vec<GroupDone> = chunk
-                .par_iter()
-                .map_init(
-                    || -> Readers { (0..num_sources).map(|_| None).collect() },
-                    |readers, group| run_group(group, readers, opts, progress),
-                )
-                .collect();
-            let ok: Vec<(&Clip, &str)> = chunk
-                .iter()
-                .zip(&done)
-                .filter_map(|(g, d)| tally.group(g, d))
-                .collect();
-            if !ok.is_empty() {
-                let batch = frames_batch(&schema, &ok).map_err(|e| write_err(frames_path, e))?;
-                if tx.send(batch).is_err() {
-                    break; // The writer failed; its error comes from join below.
-                }
-            }
-        }
-        drop(tx);
-        writer
-            .join()
-            .map_err(|_| write_err(frames_path, "the Parquet writer thread panicked"))?
-    })
-}
-
+/// Read every group and write the dataset's files into `dir`, the manifest
+/// last; fails on an empty dataset or a train split without windows.
 #[allow(clippy::too_many_arguments)]
 fn write_all(
     groups: &[Group],
@@ -1040,15 +605,7 @@ fn write_all(
     summary: &mut BuildSummary,
     source_labels: &[String],
 ) -> Result<(), DatasetError> {
-    let mut tally = Tally {
-        opts,
-        summary,
-        takes_rows: Vec::new(),
-        windows_rows: Vec::new(),
-        inputs: BTreeMap::new(),
-        moments: Moments::new(),
-        kept_content: HashMap::new(),
-    };
+    let mut tally = Tally::new(opts, summary);
     let frames_out = read_all(
         groups,
         num_sources,
@@ -1094,243 +651,9 @@ fn write_all(
 
     // The manifest comes last: it lists every other output with its hash
     // (computed while writing, so no output is read back).
-    let categories: BTreeMap<&str, &str> = (opts.categories.iter())
-        .map(|(t, c)| (t.as_str(), c.name()))
-        .collect();
-    let manifest = serde_json::json!({
-        "tool": "mocap-ingest",
-        "tool_version": env!("CARGO_PKG_VERSION"),
-        "format_version": FORMAT_VERSION,
-        "sources": source_labels,
-        "options": {
-            "fps": opts.ingest.target_fps,
-            "window": opts.window,
-            "stride": opts.stride,
-            "split_fractions": opts.fractions,
-            "seed": opts.seed,
-            "split_by": opts.split_by,
-            "std_floor": opts.std_floor,
-            "full_asf_skeleton": opts.ingest.asf.full_skeleton,
-            "frame_rate_overrides": frame_rate_overrides(&opts.ingest),
-            "exclude": opts.exclude,
-            "categories": categories,
-            "asf": asf,
-            "encoding": opts.encoding.name(),
-            "strict": opts.strict,
-        },
-        "counts": {
-            "files": summary.files,
-            "takes": summary.takes,
-            "skipped": summary.skipped.len(),
-            "excluded": summary.excluded,
-            "short_takes": summary.short_takes,
-            "native_frames": summary.native_frames,
-            "frames": summary.frames,
-            "takes_per_split": split_map(summary.takes_per_split),
-            "windows_per_split": split_map(summary.windows_per_split),
-            "warnings": summary.warnings.len(),
-        },
-        "warnings": summary.warnings,
-        "inputs": inputs.values().collect::<Vec<_>>(),
-        "outputs": outputs,
-    });
+    let manifest = manifest(opts, asf, source_labels, summary, &inputs, &outputs);
     write_json(&dir.join("manifest.json"), &manifest)?;
     Ok(())
-}
-
-fn frame_rate_overrides(o: &Options) -> BTreeMap<String, f64> {
-    let builtin = crate::fps::FrameRateTable::default();
-    o.frame_rates
-        .entries()
-        .filter(|(k, v)| builtin.get(k) != Some(*v))
-        .map(|(k, v)| (k.to_string(), v))
-        .collect()
-}
-
-fn split_map(v: [usize; 3]) -> serde_json::Value {
-    serde_json::json!({ "train": v[0], "val": v[1], "test": v[2] })
-}
-
-fn stats_of(m: &Moments, floor: f64) -> Stats {
-    let names = feature_names();
-    let std_raw: Vec<f64> = m.m2.iter().map(|v| (v / m.n).max(0.0).sqrt()).collect();
-    let std: Vec<f64> = std_raw.iter().map(|s| s.max(floor)).collect();
-    let floored = names
-        .iter()
-        .zip(&std_raw)
-        .filter(|(_, s)| **s < floor)
-        .map(|(n, _)| n.clone())
-        .collect();
-    Stats {
-        features: names,
-        mean: m.mean.to_vec(),
-        std,
-        std_raw,
-        std_floor: floor,
-        floored,
-        count: m.n as u64,
-    }
-}
-
-/// A writer that hashes (SHA-256) and counts what goes through it, so an
-/// output's manifest entry needs no second read of the file.
-struct Hashing<W> {
-    inner: W,
-    hasher: Sha256,
-    len: u64,
-}
-
-impl<W: Write> Write for Hashing<W> {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.hasher.update(&buf[..n]);
-        self.len += n as u64;
-        Ok(n)
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.inner.flush()
-    }
-}
-
-/// An output file being written: buffered, hashed.
-type OutWriter = Hashing<BufWriter<File>>;
-
-fn create_out(path: &Path) -> Result<OutWriter, DatasetError> {
-    let file = File::create(path).map_err(|e| write_err(path, e))?;
-    Ok(Hashing {
-        inner: BufWriter::new(file),
-        hasher: Sha256::new(),
-        len: 0,
-    })
-}
-
-/// Flush and sync an output; its manifest entry.
-fn finish_file(w: OutWriter, path: &Path) -> Result<OutputFile, DatasetError> {
-    let f = w
-        .inner
-        .into_inner()
-        .map_err(|e| write_err(path, e.error()))?;
-    f.sync_all().map_err(|e| write_err(path, e))?;
-    Ok(OutputFile {
-        path: path
-            .file_name()
-            .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
-        size: w.len,
-        sha256: w
-            .hasher
-            .finalize()
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect(),
-    })
-}
-
-fn write_json(path: &Path, value: &impl Serialize) -> Result<OutputFile, DatasetError> {
-    let mut text = serde_json::to_string_pretty(value).map_err(|e| write_err(path, e))?;
-    text.push('\n');
-    let mut w = create_out(path)?;
-    w.write_all(text.as_bytes())
-        .map_err(|e| write_err(path, e))?;
-    finish_file(w, path)
-}
-
-/// One row of `takes.parquet`.
-struct TakeRow {
-    take: String,
-    subject: String,
-    file: String,
-    format: &'static str,
-    skeleton: &'static str,
-    source_fps: f64,
-    native_frames: u32,
-    frames: u32,
-    split: usize,
-    category: &'static str,
-    description: Option<String>,
-}
-
-fn write_takes(
-    path: &Path,
-    rows: &[TakeRow],
-    encoding: Encoding,
-) -> Result<OutputFile, DatasetError> {
-    let schema = Arc::new(Schema::new(vec![
-        Field::new("take", DataType::Utf8, false),
-        Field::new("subject", DataType::Utf8, false),
-        Field::new("file", DataType::Utf8, false),
-        Field::new("format", DataType::Utf8, false),
-        Field::new("skeleton", DataType::Utf8, false),
-        Field::new("source_fps", DataType::Float32, false),
-        Field::new("native_frames", DataType::UInt32, false),
-        Field::new("frames", DataType::UInt32, false),
-        Field::new("split", DataType::Utf8, false),
-        Field::new("category", DataType::Utf8, false),
-        Field::new("description", DataType::Utf8, true),
-    ]));
-    let strings = |f: fn(&TakeRow) -> &str| -> ArrayRef {
-        Arc::new(StringArray::from_iter_values(rows.iter().map(f)))
-    };
-    let counts = |f: fn(&TakeRow) -> u32| -> ArrayRef {
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(f)))
-    };
-    let cols: Vec<ArrayRef> = vec![
-        strings(|r| &r.take),
-        strings(|r| &r.subject),
-        strings(|r| &r.file),
-        strings(|r| r.format),
-        strings(|r| r.skeleton),
-        Arc::new(Float32Array::from_iter_values(
-            rows.iter().map(|r| r.source_fps as f32),
-        )),
-        counts(|r| r.native_frames),
-        counts(|r| r.frames),
-        strings(|r| SPLITS[r.split]),
-        strings(|r| r.category),
-        Arc::new(StringArray::from_iter(
-            rows.iter().map(|r| r.description.as_deref()),
-        )),
-    ];
-    write_table(path, schema, cols, encoding)
-}
-
-fn write_windows(
-    path: &Path,
-    rows: &[(String, u32, usize)],
-    window: usize,
-    encoding: Encoding,
-) -> Result<OutputFile, DatasetError> {
-    let schema = Arc::new(Schema::new(vec![
-        Field::new("take", DataType::Utf8, false),
-        Field::new("start", DataType::UInt32, false),
-        Field::new("length", DataType::UInt32, false),
-        Field::new("split", DataType::Utf8, false),
-    ]));
-    let cols: Vec<ArrayRef> = vec![
-        Arc::new(StringArray::from_iter_values(
-            rows.iter().map(|r| r.0.as_str()),
-        )),
-        Arc::new(UInt32Array::from_iter_values(rows.iter().map(|r| r.1))),
-        Arc::new(UInt32Array::from_iter_values(
-            rows.iter().map(|_| window as u32),
-        )),
-        Arc::new(StringArray::from_iter_values(
-            rows.iter().map(|r| SPLITS[r.2]),
-        )),
-    ];
-    write_table(path, schema, cols, encoding)
-}
-
-fn write_table(
-    path: &Path,
-    schema: SchemaRef,
-    cols: Vec<ArrayRef>,
-    encoding: Encoding,
-) -> Result<OutputFile, DatasetError> {
-    let batch = RecordBatch::try_new(schema.clone(), cols).map_err(|e| write_err(path, e))?;
-    let mut w = parquet_writer(path, schema, encoding)?;
-    w.write(&batch).map_err(|e| write_err(path, e))?;
-    let f = w.into_inner().map_err(|e| write_err(path, e))?;
-    finish_file(f, path)
 }
 
 /// Put the finished staging directory at `out` (see [`crate::atomic`]),
@@ -1347,163 +670,4 @@ fn swap_into_place(staging: &Path, out: &Path) -> Result<(), DatasetError> {
         });
     }
     crate::atomic::replace_dir(staging, out).map_err(|e| write_err(out, e))
-}
-
-impl BuildSummary {
-    /// The summary `cargo xtask dataset` prints: counts, skipped files by
-    /// reason, copies, warnings, splits, speed (`dir`: where the dataset went;
-    /// `rss`: peak resident set size in KiB, if known).
-    pub fn report(&self, dir: &Path, seconds: f64, threads: usize, rss: Option<u64>) -> String {
-        use std::fmt::Write as _;
-        let s = self;
-        let out_dir = dir;
-        let mut out = String::new();
-
-        let _ = writeln!(out, "dataset written to {}", out_dir.display());
-        let _ = writeln!(out, "  files found        {:>10}", s.files);
-        let _ = writeln!(out, "  takes written      {:>10}", s.takes);
-        for ((format, skeleton), n) in &s.takes_by_skeleton {
-            let _ = writeln!(out, "    {format:<4} {skeleton:<33} {n:>6}");
-        }
-        let _ = writeln!(out, "  files skipped      {:>10}", s.skipped.len());
-        let mut by_code: BTreeMap<&str, usize> = BTreeMap::new();
-        for k in &s.skipped {
-            *by_code.entry(k.code.as_str()).or_default() += 1;
-        }
-        for (code, n) in &by_code {
-            let _ = writeln!(out, "    {code:<16} {n:>10}");
-        }
-        let d = &s.duplicates;
-        if d.takes > 0 {
-            let kept: Vec<String> = d
-                .kept_by_format
-                .iter()
-                .map(|(f, n)| format!("{n} {f}"))
-                .collect();
-            let _ = writeln!(
-                out,
-                "  takes in several copies {:>5}   kept: {}; {} after the preferred copy failed; \
-             {} retargeted (Daz) copies read but yielded to the subject's skeleton; \
-             {} copies cut short yielded to another copy; {} copies not read",
-                d.takes,
-                if kept.is_empty() {
-                    "none".into()
-                } else {
-                    kept.join(", ")
-                },
-                d.fell_back,
-                d.superseded,
-                d.truncated_yielded,
-                d.unread
-            );
-        }
-        if s.excluded > 0 || !s.exclude_unmatched.is_empty() {
-            let _ = writeln!(out, "  excluded files     {:>10}", s.excluded);
-        }
-        if !s.exclude_unmatched.is_empty() {
-            let _ = writeln!(
-                out,
-                "  exclude-list ids matching no take: {}",
-                s.exclude_unmatched.join(", ")
-            );
-        }
-        let _ = writeln!(
-            out,
-            "  input frames       {:>10}   (native rate)",
-            s.native_frames
-        );
-        let _ = writeln!(out, "  frames written     {:>10}   (30 fps)", s.frames);
-        let _ = writeln!(out, "  takes < 1 window   {:>10}", s.short_takes);
-        let _ = writeln!(
-            out,
-            "  takes cut short    {:>10}   (complete frames kept, see warnings)",
-            s.warnings.len()
-        );
-        let _ = writeln!(out, "  {:<8} {:>8} {:>10}", "split", "takes", "windows");
-        for (i, split) in SPLITS.iter().enumerate() {
-            let _ = writeln!(
-                out,
-                "  {:<8} {:>8} {:>10}",
-                split, s.takes_per_split[i], s.windows_per_split[i]
-            );
-        }
-        let rss = rss.map_or("?".to_string(), |k| format!("{:.0} MiB", k as f64 / 1024.0));
-        let _ = writeln!(
-            out,
-            "  {seconds:.2} s on {threads} threads, {:.0} input frames/s, peak RSS {rss}",
-            s.native_frames as f64 / seconds
-        );
-        // Duplicates that were simply not read and excluded files are routine;
-        // list the files that failed.
-        let failed: Vec<_> = s
-            .skipped
-            .iter()
-            .filter(|k| !matches!(k.code.as_str(), "duplicate_take" | "excluded"))
-            .collect();
-        if !s.warnings.is_empty() {
-            let _ = writeln!(
-                out,
-                "warnings: files that end inside their motion, their complete frames kept \
-             (all in manifest.json; --strict skips them):"
-            );
-            for w in s.warnings.iter().take(20) {
-                let _ = writeln!(out, "  {}", w.message);
-            }
-            if s.warnings.len() > 20 {
-                let _ = writeln!(out, "  … and {} more", s.warnings.len() - 20);
-            }
-        }
-        if !failed.is_empty() {
-            let _ = writeln!(
-                out,
-                "files that failed (all skipped files are in skipped.json):"
-            );
-            for k in failed.iter().take(20) {
-                let _ = writeln!(out, "  {}", k.message);
-            }
-            if failed.len() > 20 {
-                let _ = writeln!(out, "  … and {} more", failed.len() - 20);
-            }
-        }
-        out
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn windows_cover_whole_windows_only() {
-        assert_eq!(window_starts(127, 128, 64), Vec::<usize>::new());
-        assert_eq!(window_starts(128, 128, 64), vec![0]);
-        assert_eq!(window_starts(320, 128, 64), vec![0, 64, 128, 192]);
-    }
-
-    #[test]
-    fn split_is_stable_and_roughly_proportional() {
-        let f = [0.8, 0.1, 0.1];
-        assert_eq!(split_of("02_01", 7, f), split_of("02_01", 7, f));
-        let mut counts = [0; 3];
-        for i in 0..10_000 {
-            counts[split_of(&format!("{:02}_{:02}", i / 100, i % 100), 0, f)] += 1;
-        }
-        assert!((7700..8300).contains(&counts[0]), "{counts:?}");
-        assert!((800..1200).contains(&counts[1]), "{counts:?}");
-        let all_train = [1.0, 0.0, 0.0];
-        assert_eq!(split_of("x", 1, all_train), 0);
-    }
-
-    #[test]
-    fn moments_match_two_pass_statistics() {
-        let mut m = Moments::new();
-        let xs = [1.0, 2.0, 4.0, 7.0];
-        let ws = [1.0, 2.0, 0.0, 1.0];
-        for (x, w) in xs.iter().zip(ws) {
-            m.add(&[*x; NUM_FEATURES], w);
-        }
-        // Weighted: values 1, 2, 2, 7 → mean 3, variance (4+1+1+16)/4 = 5.5.
-        assert!((m.mean[0] - 3.0).abs() < 1e-12);
-        assert!((m.m2[0] / m.n - 5.5).abs() < 1e-12);
-    }
 }

@@ -133,7 +133,7 @@ pub enum ErrorKind {
 /// short last line, an AMC whose last frame lacks lines or ends mid-line)
 /// reads with its complete frames; this records the cut, so callers can warn
 /// or, when strict, refuse the file with [`ErrorKind::Truncated`]
-/// ([`Truncation::to_error`], the error such a file always gave before).
+/// ([`Truncation::to_error`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Truncation {
     /// Frames the file was to hold, counted as in the file: a BVH's

@@ -449,11 +449,12 @@ fn manifest(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap()
 }
 
-#[test]
-fn a_dataset_keeps_takes_cut_short_with_a_warning_unless_strict() {
-    let tmp = TempDir::new("truncated-dataset");
-    let src = tmp.0.join("src");
-    std::fs::create_dir_all(&src).unwrap();
+/// The collection of the dataset test, written into `src`: a whole AMC,
+/// an AMC and a BVH cut inside their last frame, an AMC damaged mid-file,
+/// and one take as a cut AMC and a whole BVH. Returns the line counts of
+/// the cut AMC and the cut BVH.
+fn write_cut_collection(src: &Path) -> (usize, usize) {
+    std::fs::create_dir_all(src).unwrap();
     let (a, b) = (amc(FRAMES), bvh(FRAMES));
     let cut_amc = &a[..a.len() - 20];
     let cut_bvh = &b[..b.len() - 20];
@@ -476,6 +477,43 @@ fn a_dataset_keeps_takes_cut_short_with_a_warning_unless_strict() {
     for (name, text) in files {
         std::fs::write(src.join(name), text).unwrap();
     }
+    (cut_amc.lines().count(), cut_bvh.lines().count())
+}
+
+/// The warnings on the two files of [`write_cut_collection`] cut short,
+/// given their line counts.
+fn cut_warnings(amc_lines: usize, bvh_lines: usize) -> [Warning; 2] {
+    [
+        Warning {
+            file: "src/02_02.amc".into(),
+            take: "02_02".into(),
+            kind: "truncated".into(),
+            frames_kept: 8,
+            frames_expected: 9,
+            message: format!(
+                "src/02_02.amc: the file ends inside its motion (line {amc_lines}): \
+                 kept its 8 complete frames of 9"
+            ),
+        },
+        Warning {
+            file: "src/02_04.bvh".into(),
+            take: "02_04".into(),
+            kind: "truncated".into(),
+            frames_kept: 8,
+            frames_expected: 9,
+            message: format!(
+                "src/02_04.bvh: the file ends inside its motion (line {bvh_lines}): \
+                 kept its 8 complete frames of 9"
+            ),
+        },
+    ]
+}
+
+#[test]
+fn a_dataset_keeps_takes_cut_short_with_a_warning_unless_strict() {
+    let tmp = TempDir::new("truncated-dataset");
+    let src = tmp.0.join("src");
+    let (amc_lines, bvh_lines) = write_cut_collection(&src);
 
     let out = tmp.0.join("ds");
     let s = build(&src, &out, false);
@@ -500,32 +538,7 @@ fn a_dataset_keeps_takes_cut_short_with_a_warning_unless_strict() {
         s.skipped[1].message
     );
     assert_eq!(s.duplicates.truncated_yielded, 1);
-    let want = [
-        Warning {
-            file: "src/02_02.amc".into(),
-            take: "02_02".into(),
-            kind: "truncated".into(),
-            frames_kept: 8,
-            frames_expected: 9,
-            message: format!(
-                "src/02_02.amc: the file ends inside its motion (line {}): \
-                 kept its 8 complete frames of 9",
-                cut_amc.lines().count()
-            ),
-        },
-        Warning {
-            file: "src/02_04.bvh".into(),
-            take: "02_04".into(),
-            kind: "truncated".into(),
-            frames_kept: 8,
-            frames_expected: 9,
-            message: format!(
-                "src/02_04.bvh: the file ends inside its motion (line {}): \
-                 kept its 8 complete frames of 9",
-                cut_bvh.lines().count()
-            ),
-        },
-    ];
+    let want = cut_warnings(amc_lines, bvh_lines);
     assert_eq!(s.warnings, want);
     // The summary `cargo xtask dataset` prints lists them.
     let text = s.report(&out, 1.0, 1, None);
@@ -553,9 +566,13 @@ fn a_dataset_keeps_takes_cut_short_with_a_warning_unless_strict() {
         );
     }
 
-    // Strict: files cut short are skipped as `truncated`, as before.
-    let strict = tmp.0.join("strict");
-    let s = build(&src, &strict, true);
+    strict_skips_them(&src, &tmp.0.join("strict"), amc_lines);
+}
+
+/// Strict: the files of [`write_cut_collection`] (in `src`) cut short are
+/// skipped as `truncated` (`amc_lines`: the cut AMC's line count).
+fn strict_skips_them(src: &Path, strict: &Path, amc_lines: usize) {
+    let s = build(src, strict, true);
     assert_eq!(s.takes, 2);
     assert_eq!((s.native_frames, s.frames), (18, 6));
     assert!(s.warnings.is_empty());
@@ -575,14 +592,13 @@ fn a_dataset_keeps_takes_cut_short_with_a_warning_unless_strict() {
     );
     assert!(
         s.skipped[0].message.contains(&format!(
-            "truncated motion: expected 9 frames, file holds 8 complete frames (ends at line {})",
-            cut_amc.lines().count()
+            "truncated motion: expected 9 frames, file holds 8 complete frames (ends at line {amc_lines})"
         )),
         "{}",
         s.skipped[0].message
     );
     assert_eq!(s.duplicates.fell_back, 1);
-    let m = manifest(&strict);
+    let m = manifest(strict);
     assert_eq!(m["warnings"], serde_json::json!([]));
     assert_eq!(m["options"]["strict"], true);
 }
