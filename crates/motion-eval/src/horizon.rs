@@ -295,7 +295,7 @@ fn real_draws(
     motions: usize,
     seed: u64,
 ) -> (Vec<Spread>, PoseSpread) {
-    let all_pose_spread = motion_metrics::pose_spread(&real_summaries);
+    let all_pose_spread = motion_metrics::pose_spread(real_summaries);
     let draw = motions.min(real.len() / 2).max(1);
     let draws: Vec<(MotionStats, f64)> = (0..REAL_DRAWS as u64)
         .into_par_iter()
