@@ -568,7 +568,7 @@ fn weight_grads(
 simd_fn! {
 /// Gradients of `pre` and `w` given the output's gradient `dout` (rows
 /// time-major inside, as in [`forward`]; the weights' gradients sum the
-/// rows in the input's order, as before the rows were reordered).
+/// rows in the input's order).
 fn backward(
     op: &ScanOp,
     cache: &Cache,
