@@ -1,6 +1,10 @@
 //! Training: Adam over shuffled windows, validation each epoch, metrics log,
 //! `best` and `last` checkpoints (safetensors + JSON, written atomically),
 //! exact resume, a NaN guard.
+//!
+//! The files: `config` ([`TrainConfig`], its presets and schedules),
+//! `checkpoint` (checkpoints, metrics, resume), `epoch` (the epochs of a
+//! run and the probe of several initialisations).
 
 use crate::data::{Category, Dataset, Windows};
 use crate::error::io_err;
