@@ -443,7 +443,7 @@ impl<'a> Back<'a> {
             }
             // The output filter.
             let dof = &mut dofs[r * width..(r + 1) * width];
-            dof[..f].copy_from_slice(&down);
+            dof[..f].copy_from_slice(down);
             if width >= f + 2 && net.lock.is_some() {
                 dof[f..f + 2].copy_from_slice(&dlog);
             }

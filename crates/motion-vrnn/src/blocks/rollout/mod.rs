@@ -442,8 +442,8 @@ impl<'a> Fwd<'a> {
         }
         fill(p, &net.prior.b, c_prior, z2);
         if t > 0 {
-            enc_h.acc(b, e, &hs);
-            prior.acc(b, p, &hs);
+            enc_h.acc(b, e, hs);
+            prior.acc(b, p, hs);
         }
         for s in 0..b {
             let (ep, ee) = (&sh.eps[at(s) * z..], &sh.e[at(s) * z..]);
@@ -500,9 +500,9 @@ impl<'a> Fwd<'a> {
         } = self;
         let d = &net.decoder;
         // The decoder, and its output filter.
-        layer(b, a1, &u, (&dec[0], &d[0].b), c_dec, true);
-        layer(b, a2, &a1, (&dec[1], &d[1].b), None, true);
-        layer(b, o, &a2, (&dec[2], &d[2].b), None, false);
+        layer(b, a1, u, (&dec[0], &d[0].b), c_dec, true);
+        layer(b, a2, a1, (&dec[1], &d[1].b), None, true);
+        layer(b, o, a2, (&dec[2], &d[2].b), None, false);
         for (v, a) in of.iter_mut().zip(o.iter()) {
             *v = if t > 0 && net.rho_out > 0.0 {
                 net.rho_out * *v + g_out * a
@@ -512,10 +512,10 @@ impl<'a> Fwd<'a> {
         }
         if let Some(k) = tape.as_deref_mut() {
             let (hw, zw) = (t * b * h..(t + 1) * b * h, t * b * z..(t + 1) * b * z);
-            k.h[hw.clone()].copy_from_slice(&hs);
-            k.c[hw].copy_from_slice(&cs);
-            k.zq[zw.clone()].copy_from_slice(&zq);
-            k.zf[zw.clone()].copy_from_slice(&zf);
+            k.h[hw.clone()].copy_from_slice(hs);
+            k.c[hw].copy_from_slice(cs);
+            k.zq[zw.clone()].copy_from_slice(zq);
+            k.zf[zw.clone()].copy_from_slice(zf);
             for s in 0..b {
                 for j in 0..z {
                     k.sq[t * b * z + s * z + j] = sigma(e[s * z2 + z + j]);
@@ -524,9 +524,9 @@ impl<'a> Fwd<'a> {
                 }
             }
             let rows = |w: usize| t * b * w..(t + 1) * b * w;
-            k.a1[rows(d[0].out)].copy_from_slice(&a1);
-            k.a2[rows(d[1].out)].copy_from_slice(&a2);
-            k.of[rows(width)].copy_from_slice(&of);
+            k.a1[rows(d[0].out)].copy_from_slice(a1);
+            k.a2[rows(d[1].out)].copy_from_slice(a2);
+            k.of[rows(width)].copy_from_slice(of);
         }
     }
 
@@ -623,9 +623,9 @@ impl<'a> Fwd<'a> {
             for &s in fed_rows.iter() {
                 xf.extend_from_slice(&out[at(s) * f..(at(s) + 1) * f]);
             }
-            layer(k, q1, &xf, (&phi[0], &net.phi[0].b), None, true);
-            layer(k, q2, &q1, (&phi[1], &net.phi[1].b), None, true);
-            layer(k, gx, &q2, (&gates_fx, &net.b_gates), None, false);
+            layer(k, q1, xf, (&phi[0], &net.phi[0].b), None, true);
+            layer(k, q2, q1, (&phi[1], &net.phi[1].b), None, true);
+            layer(k, gx, q2, (gates_fx, &net.b_gates), None, false);
             for (i, &s) in fed_rows.iter().enumerate() {
                 g[s * h4..(s + 1) * h4].copy_from_slice(&gx[i * h4..(i + 1) * h4]);
             }
@@ -671,22 +671,22 @@ impl<'a> Fwd<'a> {
                     .for_each(|(v, a)| *v += a);
             }
         }
-        gates_z.acc(b, g, &zq);
+        gates_z.acc(b, g, zq);
         if t > 0 {
-            gates_h.acc(b, g, &hs);
+            gates_h.acc(b, g, hs);
         }
         for s in 0..b {
             let gr = &mut g[s * h4..(s + 1) * h4];
             activate(gr, h);
             cp.copy_from_slice(&cs[s * h..(s + 1) * h]);
-            cell_rows(gr, &cp, &mut cs[s * h..(s + 1) * h], tc, h);
+            cell_rows(gr, cp, &mut cs[s * h..(s + 1) * h], tc, h);
             for k in 0..h {
                 hs[s * h + k] = gr[3 * h + k] * tc[k];
             }
             if let Some(tp) = tape.as_deref_mut() {
                 let r = t * b + s;
                 tp.g[r * h4..(r + 1) * h4].copy_from_slice(gr);
-                tp.tc[r * h..(r + 1) * h].copy_from_slice(&tc);
+                tp.tc[r * h..(r + 1) * h].copy_from_slice(tc);
             }
         }
         std::mem::swap(prev, own);
