@@ -181,6 +181,52 @@ fn take_categories(dir: &Path) -> Result<HashMap<String, Category>, DataError> {
     Ok(out)
 }
 
+/// Each take's row offset of its frame 0 in `frames` and its number of
+/// frames (frames are stored by take, then frame); an error where a take's
+/// frames are not consecutive from 0.
+fn take_offsets(
+    frames: &DataFrame,
+    fpath: &Path,
+) -> Result<HashMap<String, (usize, usize)>, DataError> {
+    let takes = column(frames, "take", fpath, |c| c.str().cloned())?;
+    let frame_idx = column(frames, "frame", fpath, |c| c.u32().cloned())?;
+    let mut offsets: HashMap<String, (usize, usize)> = HashMap::new();
+    for (row, (t, f)) in takes.iter().zip(frame_idx.iter()).enumerate() {
+        let (Some(t), Some(f)) = (t, f) else {
+            return Err(DataError::Invalid(format!(
+                "{}: null take or frame at row {row}",
+                fpath.display()
+            )));
+        };
+        let e = offsets.entry(t.to_string()).or_insert((row, 0));
+        if f as usize != row - e.0 {
+            return Err(DataError::Invalid(format!(
+                "{}: take {t} is not stored as consecutive frames from 0 (row {row})",
+                fpath.display()
+            )));
+        }
+        e.1 += 1;
+    }
+    Ok(offsets)
+}
+
+/// Every feature column of `frames`, normalised by `stats` (a missing value
+/// is NaN).
+fn normalised_columns(
+    frames: &DataFrame,
+    stats: &Stats,
+    fpath: &Path,
+) -> Result<Vec<Vec<f32>>, DataError> {
+    let nf = stats.features.len();
+    let mut cols: Vec<Vec<f32>> = Vec::with_capacity(nf);
+    for (i, name) in stats.features.iter().enumerate() {
+        let c = column(frames, name, fpath, |c| c.f32().cloned())?;
+        let (m, s) = (stats.mean[i] as f32, stats.std[i] as f32);
+        cols.push(c.iter().map(|v| (v.unwrap_or(f32::NAN) - m) / s).collect());
+    }
+    Ok(cols)
+}
+
 /// Load the given splits of a dataset directory, with the category of every
 /// window ([`Dataset::categories`]).
 pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
@@ -200,33 +246,9 @@ pub fn load(dir: &Path, splits: &[&str]) -> Result<Dataset, DataError> {
         })
         .map_err(|e| read_err(&fpath, e))?;
 
-    // Row offset of each take's frame 0 (frames are stored by take, then frame).
-    let takes = column(&frames, "take", &fpath, |c| c.str().cloned())?;
-    let frame_idx = column(&frames, "frame", &fpath, |c| c.u32().cloned())?;
-    let mut offsets: HashMap<String, (usize, usize)> = HashMap::new();
-    for (row, (t, f)) in takes.iter().zip(frame_idx.iter()).enumerate() {
-        let (Some(t), Some(f)) = (t, f) else {
-            return Err(DataError::Invalid(format!(
-                "{}: null take or frame at row {row}",
-                fpath.display()
-            )));
-        };
-        let e = offsets.entry(t.to_string()).or_insert((row, 0));
-        if f as usize != row - e.0 {
-            return Err(DataError::Invalid(format!(
-                "{}: take {t} is not stored as consecutive frames from 0 (row {row})",
-                fpath.display()
-            )));
-        }
-        e.1 += 1;
-    }
+    let offsets = take_offsets(&frames, &fpath)?;
     let nf = stats.features.len();
-    let mut cols: Vec<Vec<f32>> = Vec::with_capacity(nf);
-    for (i, name) in stats.features.iter().enumerate() {
-        let c = column(&frames, name, &fpath, |c| c.f32().cloned())?;
-        let (m, s) = (stats.mean[i] as f32, stats.std[i] as f32);
-        cols.push(c.iter().map(|v| (v.unwrap_or(f32::NAN) - m) / s).collect());
-    }
+    let cols = normalised_columns(&frames, &stats, &fpath)?;
 
     let wt = column(&windows, "take", &wpath, |c| c.str().cloned())?;
     let ws = column(&windows, "start", &wpath, |c| c.u32().cloned())?;

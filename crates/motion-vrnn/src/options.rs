@@ -236,6 +236,14 @@ impl Overrides {
         if let Some(v) = self.decoder {
             cfg.model.decoder = v;
         }
+        self.apply_training(cfg);
+        self.apply_choice(cfg);
+    }
+
+    /// The training schedule's values of `self` into `cfg` (epochs, batch,
+    /// learning rate, seed, warm-up, clipping, stopping, judge, inits, late
+    /// epochs).
+    fn apply_training(&self, cfg: &mut TrainConfig) {
         if let Some(v) = self.epochs {
             cfg.epochs = v;
         }
@@ -280,6 +288,10 @@ impl Overrides {
         if let Some(v) = self.late_root_weight {
             cfg.late_root_weight = (v != 1.0).then_some(v);
         }
+    }
+
+    /// The condition and the checkpoint choice of `self` into `cfg`.
+    fn apply_choice(&self, cfg: &mut TrainConfig) {
         match self.condition {
             Some(ConditionOn::None) => {
                 cfg.condition = None;
@@ -446,6 +458,24 @@ mod tests {
     }
 
     #[test]
+    fn the_minute_preset_is_named_as_its_model_for_every_model() {
+        // Named as its model, for every model (the checkpoint's name);
+        // the late epochs only where the frames are fed back to a skeleton
+        // (`motion`), the others stopping early as `standard` does.
+        for (name, _) in crate::model::MODELS {
+            let c = crate::model::Config::named(name).unwrap_or_default();
+            let cfg = Preset::Minute.for_model(c);
+            assert_eq!(cfg.model.name(), Some(name));
+            let late = (name == "motion").then_some(300);
+            assert_eq!(cfg.rollout_last, late, "{name}");
+            let standard = TrainConfig::standard();
+            let stops = standard.early_stopping;
+            assert_eq!(cfg.early_stopping, late.map_or(stops, |_| None), "{name}");
+            assert_eq!(cfg.epochs, late.map_or(standard.epochs, |_| 600), "{name}");
+        }
+    }
+
+    #[test]
     fn the_minute_preset_is_the_standard_one_with_its_options_for_any_model() {
         let motion = || crate::model::Config::named("motion").unwrap_or_default();
         let minute = Preset::Minute.for_model(motion());
@@ -498,20 +528,6 @@ mod tests {
             ([64, 32], 32, 8)
         );
         assert!(minute.model.parts.rollouts_at_temperature && minute.model.parts.pace);
-        // Still named as its model, for every model (the checkpoint's name);
-        // the late epochs only where the frames are fed back to a skeleton
-        // (`motion`), the others stopping early as `standard` does.
-        for (name, _) in crate::model::MODELS {
-            let c = crate::model::Config::named(name).unwrap_or_default();
-            let cfg = Preset::Minute.for_model(c);
-            assert_eq!(cfg.model.name(), Some(name));
-            let late = (name == "motion").then_some(300);
-            assert_eq!(cfg.rollout_last, late, "{name}");
-            let standard = TrainConfig::standard();
-            let stops = standard.early_stopping;
-            assert_eq!(cfg.early_stopping, late.map_or(stops, |_| None), "{name}");
-            assert_eq!(cfg.epochs, late.map_or(standard.epochs, |_| 600), "{name}");
-        }
         assert_eq!(minute.judge_stretches, Some(14));
         assert_eq!(minute.select, Select::Generation { every: 10 });
         assert_ne!(minute, Preset::Standard.for_model(motion()));

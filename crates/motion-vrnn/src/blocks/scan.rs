@@ -332,31 +332,13 @@ fn pack_zh(w: &[f32], d: ScanDims) -> Vec<f32> {
     out
 }
 
-simd_fn! {
-/// The recurrence forward over `b` sequences of `tt` rows: the output rows
-/// and what the backward pass needs. Inside, rows are time-major (row
-/// `t·b + s` is step `t` of sequence `s`), so the `b` rows of one step lie
-/// together: in the input's order (`s·tt + t`) they were `tt` rows apart, a
-/// power-of-two stride that made every step's rows fight for the same
-/// cache sets.
-fn forward(op: &ScanOp, x: &Inputs, b: usize, tt: usize) -> (Vec<f32>, Cache) {
-    let (eps, w) = (x.eps, x.w);
-    let ScanDims {
-        hidden: h,
-        latent: z,
-    } = op.dims;
-    let (p, o, zh, z2, h4) = (op.dims.pre(), op.dims.out(), z + h, 2 * z, 4 * h);
+/// The posterior and gate pre-activations of [`forward`], time-major,
+/// before the recurrence adds to them: `pre`'s two parts (filled by
+/// copying, not zeroed first), plus the rows where given.
+#[inline(always)]
+fn start_pre(op: &ScanOp, x: &Inputs, b: usize, tt: usize) -> (Vec<f32>, Vec<f32>) {
+    let (p, z2, h4) = (op.dims.pre(), 2 * op.dims.latent, 4 * op.dims.hidden);
     let n = b * tt;
-    let wzh = pack_zh(w, op.dims);
-    let (pe, pg) = (
-        Packed::new(w, tr(0, h), h, z2),
-        Packed::new(&wzh, tr(0, zh), zh, h4),
-    );
-    let mut u = vec![0.0f32; n * zh];
-    let mut c = vec![0.0f32; n * h];
-    let mut tc = vec![0.0f32; n * h];
-    // The posterior and gate pre-activations start as `pre`'s two parts
-    // (filled by copying, not zeroed first), plus the rows where given.
     let (mut e, mut g) = (Vec::with_capacity(n * z2), Vec::with_capacity(n * h4));
     let per = if op.shared == Some(true) { 0 } else { p };
     for t in 0..tt {
@@ -375,6 +357,33 @@ fn forward(op: &ScanOp, x: &Inputs, b: usize, tt: usize) -> (Vec<f32>, Cache) {
             }
         }
     }
+    (e, g)
+}
+
+simd_fn! {
+/// The recurrence forward over `b` sequences of `tt` rows: the output rows
+/// and what the backward pass needs. Inside, rows are time-major (row
+/// `t·b + s` is step `t` of sequence `s`), so the `b` rows of one step lie
+/// together: in the input's order (`s·tt + t`) they were `tt` rows apart, a
+/// power-of-two stride that made every step's rows fight for the same
+/// cache sets.
+fn forward(op: &ScanOp, x: &Inputs, b: usize, tt: usize) -> (Vec<f32>, Cache) {
+    let (eps, w) = (x.eps, x.w);
+    let ScanDims {
+        hidden: h,
+        latent: z,
+    } = op.dims;
+    let (o, zh, z2, h4) = (op.dims.out(), z + h, 2 * z, 4 * h);
+    let n = b * tt;
+    let wzh = pack_zh(w, op.dims);
+    let (pe, pg) = (
+        Packed::new(w, tr(0, h), h, z2),
+        Packed::new(&wzh, tr(0, zh), zh, h4),
+    );
+    let mut u = vec![0.0f32; n * zh];
+    let mut c = vec![0.0f32; n * h];
+    let mut tc = vec![0.0f32; n * h];
+    let (mut e, mut g) = start_pre(op, x, b, tt);
     for t in 0..tt {
         let base = t * b;
         if t > 0 {
@@ -447,115 +456,73 @@ fn forward(op: &ScanOp, x: &Inputs, b: usize, tt: usize) -> (Vec<f32>, Cache) {
 }
 }
 
-simd_fn! {
-/// Gradients of `pre` and `w` given the output's gradient `dout` (rows
-/// time-major inside, as in [`forward`]; the weights' gradients sum the
-/// rows in the input's order, as before the rows were reordered).
-fn backward(
+/// Step `t`'s gate gradients (rows time-major, as in [`backward`]) from
+/// the gradient of the state after it (what step `t + 1` left in `du`) and
+/// of the cell (`dc`, per sequence, carried back a step).
+#[inline(always)]
+fn gate_grads(
     op: &ScanOp,
     cache: &Cache,
-    dout: &[f32],
-    x: &Inputs,
+    du: &[f32],
+    dg: &mut [f32],
+    dc: &mut [f32],
+    (b, tt, t): (usize, usize, usize),
+) {
+    let (h, z) = (op.dims.hidden, op.dims.latent);
+    let (zh, h4) = (z + h, 4 * h);
+    let Cache { g, c, tc, .. } = cache;
+    let base = t * b;
+    for s in 0..b {
+        let r = base + s;
+        let gr = &g[r * h4..(r + 1) * h4];
+        let (gi, rest) = gr.split_at(h);
+        let (gf, rest) = rest.split_at(h);
+        let (gg, go) = (&rest[..h], &rest[h..2 * h]);
+        let (di, rest) = dg[r * h4..(r + 1) * h4].split_at_mut(h);
+        let (df, rest) = rest.split_at_mut(h);
+        let (dgg, dgo) = rest.split_at_mut(h);
+        let dgo = &mut dgo[..h];
+        // Gradient of h_t: what step t + 1 saw as h_{t−1}.
+        let dh = if t + 1 < tt {
+            &du[(r + b) * zh + z..(r + b + 1) * zh]
+        } else {
+            &op.zeros[..h]
+        };
+        let c_prev = if t > 0 {
+            &c[(r - b) * h..(r - b + 1) * h]
+        } else {
+            &op.zeros[..h]
+        };
+        let tcr = &tc[r * h..(r + 1) * h];
+        let dcr = &mut dc[s * h..(s + 1) * h];
+        for k in 0..h {
+            let (ig, fg, gv, og) = (gi[k], gf[k], gg[k], go[k]);
+            let tcv = tcr[k];
+            let dcv = dcr[k] + dh[k] * og * (1.0 - tcv * tcv);
+            dcr[k] = dcv * fg;
+            di[k] = dcv * gv * ig * (1.0 - ig);
+            df[k] = dcv * c_prev[k] * fg * (1.0 - fg);
+            dgg[k] = dcv * ig * (1.0 - gv * gv);
+            dgo[k] = dh[k] * tcv * og * (1.0 - og);
+        }
+    }
+}
+
+/// `pre`'s gradient in the input's order and the weights' gradients, from
+/// the time-major `de`, `dg` and rows `u` of [`backward`] (the weights'
+/// gradients sum the rows in the input's order).
+#[inline(always)]
+fn weight_grads(
+    op: &ScanOp,
+    u: &[f32],
+    de: &[f32],
+    dg: &[f32],
     b: usize,
     tt: usize,
 ) -> (Vec<f32>, Vec<f32>) {
-    let (eps, w) = (x.eps, x.w);
-    let ScanDims {
-        hidden: h,
-        latent: z,
-    } = op.dims;
-    let (p, o, zh, z2, h4) = (op.dims.pre(), op.dims.out(), z + h, 2 * z, 4 * h);
+    let (h, z) = (op.dims.hidden, op.dims.latent);
+    let (p, zh, z2, h4) = (op.dims.pre(), z + h, 2 * z, 4 * h);
     let n = b * tt;
-    let wzh = pack_zh(w, op.dims);
-    let (pg, pe) = (
-        Packed::new(&wzh, rm(0, zh), h4, zh),
-        Packed::new(w, rm(0, h), z2, h),
-    );
-    let Cache { u, e, g, c, tc } = cache;
-    // dU holds, per row, d[z | h_{t−1}]; starts with the output's part.
-    let mut du = vec![0.0f32; n * zh];
-    for s in 0..b {
-        for t in 0..tt {
-            let (r, q) = (t * b + s, s * tt + t);
-            du[r * zh..r * zh + z].copy_from_slice(&dout[q * o + h + z2..(q + 1) * o]);
-            du[r * zh + z..(r + 1) * zh].copy_from_slice(&dout[q * o..q * o + h]);
-        }
-    }
-    let mut de = vec![0.0f32; n * z2];
-    let mut dg = vec![0.0f32; n * h4];
-    let mut dc = vec![0.0f32; b * h];
-    for t in (0..tt).rev() {
-        let base = t * b;
-        for s in 0..b {
-            let r = base + s;
-            let gr = &g[r * h4..(r + 1) * h4];
-            let (gi, rest) = gr.split_at(h);
-            let (gf, rest) = rest.split_at(h);
-            let (gg, go) = (&rest[..h], &rest[h..2 * h]);
-            let (di, rest) = dg[r * h4..(r + 1) * h4].split_at_mut(h);
-            let (df, rest) = rest.split_at_mut(h);
-            let (dgg, dgo) = rest.split_at_mut(h);
-            let dgo = &mut dgo[..h];
-            // Gradient of h_t: what step t + 1 saw as h_{t−1}.
-            let dh = if t + 1 < tt {
-                &du[(r + b) * zh + z..(r + b + 1) * zh]
-            } else {
-                &op.zeros[..h]
-            };
-            let c_prev = if t > 0 {
-                &c[(r - b) * h..(r - b + 1) * h]
-            } else {
-                &op.zeros[..h]
-            };
-            let tcr = &tc[r * h..(r + 1) * h];
-            let dcr = &mut dc[s * h..(s + 1) * h];
-            for k in 0..h {
-                let (ig, fg, gv, og) = (gi[k], gf[k], gg[k], go[k]);
-                let tcv = tcr[k];
-                let dcv = dcr[k] + dh[k] * og * (1.0 - tcv * tcv);
-                dcr[k] = dcv * fg;
-                di[k] = dcv * gv * ig * (1.0 - ig);
-                df[k] = dcv * c_prev[k] * fg * (1.0 - fg);
-                dgg[k] = dcv * ig * (1.0 - gv * gv);
-                dgo[k] = dh[k] * tcv * og * (1.0 - og);
-            }
-        }
-        // d[z | h] += dG · [W_z | W_h]
-        mm_small(
-            (b, zh, h4),
-            &mut du,
-            rm(base * zh, zh),
-            true,
-            &dg,
-            rm(base * h4, h4),
-            &wzh,
-            rm(0, zh),
-            &pg,
-        );
-        for s in 0..b {
-            let (r, q) = (base + s, s * tt + t);
-            for k in 0..z {
-                let dz = du[r * zh + k];
-                let sv = e[r * z2 + z + k];
-                de[r * z2 + k] = dout[q * o + h + k] + dz;
-                de[r * z2 + z + k] = (dout[q * o + h + z + k] + dz * eps[q * z + k]) * dsigma(sv);
-            }
-        }
-        if t > 0 {
-            // dh_{t−1} += dE · W_e
-            mm_small(
-                (b, h, z2),
-                &mut du,
-                rm(base * zh + z, zh),
-                true,
-                &de,
-                rm(base * z2, z2),
-                w,
-                rm(0, h),
-                &pe,
-            );
-        }
-    }
     // Back to the input's order: `pre`'s gradient, and the rows the weights'
     // gradients sum over (in that order, so the sums keep their order).
     let (mut dpre, mut ub) = (Vec::with_capacity(n * p), Vec::with_capacity(n * zh));
@@ -596,6 +563,85 @@ fn backward(
         dw[oh + r * h..oh + (r + 1) * h].copy_from_slice(&dwzh[r * zh + z..(r + 1) * zh]);
     }
     (dpre, dw)
+}
+
+simd_fn! {
+/// Gradients of `pre` and `w` given the output's gradient `dout` (rows
+/// time-major inside, as in [`forward`]; the weights' gradients sum the
+/// rows in the input's order).
+fn backward(
+    op: &ScanOp,
+    cache: &Cache,
+    dout: &[f32],
+    x: &Inputs,
+    b: usize,
+    tt: usize,
+) -> (Vec<f32>, Vec<f32>) {
+    let (eps, w) = (x.eps, x.w);
+    let ScanDims {
+        hidden: h,
+        latent: z,
+    } = op.dims;
+    let (o, zh, z2, h4) = (op.dims.out(), z + h, 2 * z, 4 * h);
+    let n = b * tt;
+    let wzh = pack_zh(w, op.dims);
+    let (pg, pe) = (
+        Packed::new(&wzh, rm(0, zh), h4, zh),
+        Packed::new(w, rm(0, h), z2, h),
+    );
+    let Cache { u, e, .. } = cache;
+    // dU holds, per row, d[z | h_{t−1}]; starts with the output's part.
+    let mut du = vec![0.0f32; n * zh];
+    for s in 0..b {
+        for t in 0..tt {
+            let (r, q) = (t * b + s, s * tt + t);
+            du[r * zh..r * zh + z].copy_from_slice(&dout[q * o + h + z2..(q + 1) * o]);
+            du[r * zh + z..(r + 1) * zh].copy_from_slice(&dout[q * o..q * o + h]);
+        }
+    }
+    let mut de = vec![0.0f32; n * z2];
+    let mut dg = vec![0.0f32; n * h4];
+    let mut dc = vec![0.0f32; b * h];
+    for t in (0..tt).rev() {
+        let base = t * b;
+        gate_grads(op, cache, &du, &mut dg, &mut dc, (b, tt, t));
+        // d[z | h] += dG · [W_z | W_h]
+        mm_small(
+            (b, zh, h4),
+            &mut du,
+            rm(base * zh, zh),
+            true,
+            &dg,
+            rm(base * h4, h4),
+            &wzh,
+            rm(0, zh),
+            &pg,
+        );
+        for s in 0..b {
+            let (r, q) = (base + s, s * tt + t);
+            for k in 0..z {
+                let dz = du[r * zh + k];
+                let sv = e[r * z2 + z + k];
+                de[r * z2 + k] = dout[q * o + h + k] + dz;
+                de[r * z2 + z + k] = (dout[q * o + h + z + k] + dz * eps[q * z + k]) * dsigma(sv);
+            }
+        }
+        if t > 0 {
+            // dh_{t−1} += dE · W_e
+            mm_small(
+                (b, h, z2),
+                &mut du,
+                rm(base * zh + z, zh),
+                true,
+                &de,
+                rm(base * z2, z2),
+                w,
+                rm(0, h),
+                &pe,
+            );
+        }
+    }
+    weight_grads(op, u, &de, &dg, b, tt)
 }
 }
 
