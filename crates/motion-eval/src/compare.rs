@@ -517,7 +517,11 @@ fn header(first: &str, table: &[(String, Vec<SeedRun>)]) -> String {
 
 /// The results page (Markdown).
 pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<String, EvalError> {
-    let mut s = String::from("# Results: every model, several seeds\n\n");
+    let mut s = String::from(if a.default_only {
+        "# Results: the default model, several seeds\n\n"
+    } else {
+        "# Results: every model, several seeds\n\n"
+    });
     let _ = writeln!(
         s,
         "Written by `cargo xtask compare --data {} --page {}{}{}` ({} seeds per model, each with its preset's schedule{}). \

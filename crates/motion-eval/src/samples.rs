@@ -145,7 +145,7 @@ impl Written {
             let c = self.category_sheet.join(", ");
             line(
                 "category_sheet.png",
-                format!("one row per category asked for: {c}"),
+                format!("one row per category asked for, its first {PREVIEW_FRAMES} frames: {c}"),
             );
         }
         if let Some(p) = &self.pinned {
@@ -292,7 +292,7 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
             category_sheet(
                 &m,
                 spec,
-                o.frames,
+                o.frames.min(PREVIEW_FRAMES),
                 o.sheet_columns,
                 &out.join("category_sheet.png"),
             )?
