@@ -18,10 +18,8 @@ impl MotionModel for Vrnn {
         let eps = eps.transpose(0, 1)?.contiguous()?;
         let lengths = self.window_bones(x)?;
         let feat = self.features(x)?;
-        // Experiment: the pace of the frames sampling reads (the context).
-        let head = x.narrow(1, 0, x.dim(1)?.min(16))?;
         let bias = self
-            .bias(cond, Some(&head))?
+            .bias(cond, Some(x))?
             .map(|b| b.over_time())
             .transpose()?;
         let bias = bias.as_ref();
