@@ -265,11 +265,8 @@ fn minutes(
     if m.held_pace().is_none() {
         return Ok((Some(minute), None));
     }
-    let sampler = (m.pace_gain, m.draws);
-    (m.pace_gain, m.draws) = (0.0, 1);
-    let alone = crate::horizon::horizon(m, a, o);
-    (m.pace_gain, m.draws) = sampler;
-    Ok((Some(minute), Some(alone?)))
+    let alone = m.alone(|m| crate::horizon::horizon(m, a, o))?;
+    Ok((Some(minute), Some(alone)))
 }
 
 /// `eval.md`: the report as a Markdown page.

@@ -225,6 +225,16 @@ impl Run {
         })
     }
 
+    /// `f` of this run sampled by the model alone: one draw, the pace not
+    /// held; the run's own sampler is restored afterwards.
+    pub fn alone<T>(&mut self, f: impl FnOnce(&Run) -> T) -> T {
+        let sampler = (self.pace_gain, self.draws);
+        (self.pace_gain, self.draws) = (0.0, 1);
+        let out = f(self);
+        (self.pace_gain, self.draws) = sampler;
+        out
+    }
+
     /// The gain motions are held to their asked pace with, and the draws
     /// each run is chosen from, where they are held ([`generate::held_gain`]).
     pub fn held_pace(&self) -> Option<(f64, usize)> {

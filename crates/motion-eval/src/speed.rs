@@ -58,11 +58,7 @@ pub fn time_sampling(
     };
     let mut out = vec![time(m, "default sampler")?];
     if m.held_pace().is_some() {
-        let sampler = (m.pace_gain, m.draws);
-        (m.pace_gain, m.draws) = (0.0, 1);
-        let alone = time(m, "model alone");
-        (m.pace_gain, m.draws) = sampler;
-        out.push(alone?);
+        out.push(m.alone(|m| time(m, "model alone"))?);
     }
     Ok(out)
 }
