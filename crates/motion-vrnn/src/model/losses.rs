@@ -2,6 +2,13 @@
 
 use super::*;
 
+/// The frames a window's pace is read from: its first
+/// [`crate::generate::CONTEXT`], the frames generation reads its pace from,
+/// so that training asks for the pace sampling asks for.
+fn context_of(x: &Tensor) -> Result<Tensor> {
+    x.narrow(1, 0, x.dim(1)?.min(crate::generate::CONTEXT))
+}
+
 impl MotionModel for Vrnn {
     fn config(&self) -> &Config {
         &self.config
@@ -19,7 +26,7 @@ impl MotionModel for Vrnn {
         let lengths = self.window_bones(x)?;
         let feat = self.features(x)?;
         let bias = self
-            .bias(cond, Some(x))?
+            .bias(cond, Some(&context_of(x)?))?
             .map(|b| b.over_time())
             .transpose()?;
         let bias = bias.as_ref();
@@ -85,7 +92,7 @@ impl MotionModel for Vrnn {
         let (b, t, _) = x.dims3()?;
         let zero = Tensor::zeros((b, t, self.config.latent), DType::F32, x.device())?;
         let bias = self
-            .bias(cond, Some(x))?
+            .bias(cond, Some(&context_of(x)?))?
             .map(|b| b.over_time())
             .transpose()?;
         // With ε = 0 the posterior sample is its mean.
