@@ -8,8 +8,13 @@ use crate::{Frame2, CONTROL, CONTROL_FRAMES, FPS};
 /// closest point on the path, each frame.
 pub const WINDOW_M: f64 = 1.5;
 
-/// Progress this close to a point (metres) has reached it.
+/// Progress this close to the end (metres) has finished the path.
 pub const REACHED_M: f64 = 0.05;
+
+/// Progress this close to a wait's point (metres) starts the wait: wider
+/// than [`REACHED_M`], so a root that stops a little short is not left
+/// waiting for a wait that never starts.
+pub const WAIT_REACHED_M: f64 = 0.25;
 
 /// Turns a path into control rows, keeping a progress along it that only
 /// moves forward.
@@ -63,14 +68,14 @@ impl Follower {
     /// per generated frame. Progress moves to the root's closest point up to
     /// [`WINDOW_M`] ahead; the target k frames ahead is the path's point
     /// `speed·k/FPS` further on and its tangent there, in `at`'s axes. Targets
-    /// stop at the end and at a pending wait's point; when progress reaches
-    /// that point they stay there for the wait's seconds (one call = 1/FPS s)
+    /// stop at the end and at a pending wait's point; when progress comes
+    /// within [`WAIT_REACHED_M`] of that point they stay there for the wait's seconds (one call = 1/FPS s)
     /// facing along the segment into it, then progress resumes.
     pub fn control(&mut self, at: &Frame2) -> [f32; CONTROL] {
         if self.holding.is_none() {
             self.s = self.s.max(self.path.project(at.pos, self.s, WINDOW_M));
             if let Some(w) = self.wait_arc() {
-                if w - self.s <= REACHED_M {
+                if w - self.s <= WAIT_REACHED_M {
                     let secs = self.path.waits()[self.next_wait].1;
                     self.holding = Some((secs * FPS).round() as usize);
                 }

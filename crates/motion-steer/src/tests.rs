@@ -195,20 +195,21 @@ fn a_wait_holds_the_targets_then_releases_them() {
     for z in [0.0, 1.5, 3.0, 4.5] {
         f.control(&at([0.0, z], [0.0, 1.0]));
     }
-    // 0.2 m before the stop: every target is on it.
-    let row = f.control(&at([0.0, 4.8], [0.0, 1.0]));
-    let stop = [0.0, 0.2f32, 0.0, 1.0];
+    // 0.3 m before the stop (not yet reached): every target is on it.
+    let row = f.control(&at([0.0, 4.7], [0.0, 1.0]));
+    let stop = [0.0, 0.3f32, 0.0, 1.0];
     assert_eq!(targets(&row), [stop; 3]);
-    // On the stop: held 3 s = 90 frames.
-    let here = at([0.0, 5.0], [0.0, 1.0]);
+    // 0.2 m before it the wait starts: held 3 s = 90 frames.
+    let here = at([0.0, 4.8], [0.0, 1.0]);
     for call in 0..90 {
         let row = f.control(&here);
-        assert_eq!(targets(&row), [[0.0, 0.0, 0.0, 1.0]; 3], "call {call}");
+        assert_eq!(targets(&row), [[0.0, 0.2, 0.0, 1.0]; 3], "call {call}");
         assert!(!f.done());
     }
+    // Released: progress moves on to the stop, the targets ahead of it.
     let row = f.control(&here);
     let t = targets(&row);
-    for (i, d) in [1.0 / 3.0, 2.0 / 3.0, 1.0].iter().enumerate() {
+    for (i, d) in [0.2 + 1.0 / 3.0, 0.2 + 2.0 / 3.0, 1.2].iter().enumerate() {
         assert!((t[i][1] as f64 - d).abs() < 1e-6, "{t:?}");
     }
     assert_eq!(f.progress(), 5.0);
