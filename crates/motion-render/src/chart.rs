@@ -22,7 +22,7 @@ pub struct Series<'a> {
     pub points: Vec<(f64, f64)>,
 }
 
-fn style(rgb: [u8; 3], width: u32) -> ShapeStyle {
+pub(crate) fn style(rgb: [u8; 3], width: u32) -> ShapeStyle {
     ShapeStyle {
         color: RGBColor(rgb[0], rgb[1], rgb[2]).to_rgba(),
         filled: false,
@@ -30,7 +30,7 @@ fn style(rgb: [u8; 3], width: u32) -> ShapeStyle {
     }
 }
 
-type DrawErr = DrawingAreaErrorKind<NoError>;
+pub(crate) type DrawErr = DrawingAreaErrorKind<NoError>;
 
 /// A tick label: integers without decimals, others with at most three
 /// significant digits and no trailing zeros.
@@ -64,7 +64,7 @@ fn padded(lo: f64, hi: f64) -> Range<f64> {
 }
 
 /// The chart context every chart draws its data on.
-type Chart<'a, 'b, X, Y> = ChartContext<
+pub(crate) type Chart<'a, 'b, X, Y> = ChartContext<
     'a,
     Backend<'b>,
     Cartesian2d<<X as AsRangedCoord>::CoordDescType, <Y as AsRangedCoord>::CoordDescType>,
@@ -72,7 +72,7 @@ type Chart<'a, 'b, X, Y> = ChartContext<
 
 /// A chart on `canvas`: title, axes with round tick labels, a light grid,
 /// the data drawn by `data` (which labels its series), a legend.
-fn plot<X, Y>(
+pub(crate) fn plot<X, Y>(
     canvas: &mut Canvas,
     (title, xlabel, ylabel): (&str, &str, &str),
     (x, y): (X, Y),

@@ -7,6 +7,8 @@
 //! - [`figure`]: stick figures (contact sheet, animated PNG) on the
 //!   anti-aliased [`canvas`];
 //! - [`chart`]: line charts and histograms with `plotters`;
+//! - [`top_down`]: asked paths and the roots that followed them, seen from
+//!   above;
 //! - [`feet`]: planted toes pinned in place, the legs bent to reach them;
 //! - [`viewer`]: one self-contained HTML file with a 3-D viewer (three.js).
 //!
@@ -20,7 +22,10 @@ pub mod feet;
 pub mod figure;
 pub mod io;
 pub mod solve;
+pub mod top_down;
 pub mod viewer;
+
+pub use top_down::top_down;
 
 use mocap_ingest::skeleton::Pose;
 use std::io::Write;
