@@ -82,7 +82,7 @@ pub struct DatasetArgs {
     /// Print one machine-readable line for bench-dataset.
     #[arg(long, hide = true)]
     bench_line: bool,
-    /// Parquet compression and float encoding (bench-dataset --encodings compares them): snappy, snappy_byte_stream_split, zstd, zstd_byte_stream_split.
+    /// Parquet compression and float encoding: snappy, snappy_byte_stream_split, zstd, zstd_byte_stream_split.
     #[arg(long, hide = true)]
     encoding: Option<String>,
 }
@@ -258,9 +258,8 @@ fn print_bench_row(name: &str, threads: usize, r: &BenchRun) {
 
 /// `cargo xtask bench-dataset`: each source alone with 1 thread and all
 /// cores; with the default sources also the ASF/AMC sample at 10× (peak RSS
-/// must not grow with the collection); with `encodings`, the 10× build once
-/// per table encoding, with `frames.parquet`'s size and polars' read time.
-pub fn bench(sources: Vec<PathBuf>, repeat: usize, encodings: bool) -> Result<()> {
+/// must not grow with the collection).
+pub fn bench(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
     let default = sources.is_empty();
     let sources = if default { shared_samples()? } else { sources };
     let exe = std::env::current_exe().context("locating the xtask binary")?;
@@ -283,7 +282,7 @@ pub fn bench(sources: Vec<PathBuf>, repeat: usize, encodings: bool) -> Result<()
             }
         }
         let asfamc = sources.iter().find(|s| file_name(s).contains("asfamc"));
-        let (Some(asfamc), true) = (asfamc, default || encodings) else {
+        let (Some(asfamc), true) = (asfamc, default) else {
             return Ok(());
         };
         let (big, fps) = mocap_ingest::bench::scaled_collection(asfamc, &tmp, SCALE)?;
@@ -304,64 +303,8 @@ pub fn bench(sources: Vec<PathBuf>, repeat: usize, encodings: bool) -> Result<()
                 one as f64 / 1024.0
             );
         }
-        if encodings {
-            bench_encodings(&exe, &big, &fps, &tmp, cores, repeat)?;
-        }
         Ok(())
     })();
     let _ = std::fs::remove_dir_all(&tmp);
     result
-}
-
-/// The scaled build once per encoding: size of `frames.parquet`, build time,
-/// and the time polars takes to read all of it (best of `repeat`).
-fn bench_encodings(
-    exe: &Path,
-    big: &Path,
-    fps: &str,
-    tmp: &Path,
-    cores: usize,
-    repeat: usize,
-) -> Result<()> {
-    use polars::prelude::{LazyFrame, PlRefPath};
-    println!(
-        "\nframes.parquet encodings (ASF/AMC sample ×{SCALE}, {cores} threads, best of {repeat}):"
-    );
-    println!(
-        "{:<26} {:>9} {:>13} {:>14} {:>9}",
-        "encoding", "MB", "build s", "polars read s", "peak RSS"
-    );
-    for e in Encoding::ALL {
-        let out = tmp.join(format!("out-{}", e.name()));
-        let r = bench_runs(
-            exe,
-            big,
-            &out,
-            cores,
-            &["--fps-table", fps, "--encoding", e.name()],
-            repeat,
-        )?;
-        let frames = out.join("frames.parquet");
-        let size = std::fs::metadata(&frames)?.len();
-        let mut read = f64::INFINITY;
-        for _ in 0..repeat.max(1) {
-            let t = Instant::now();
-            let df = LazyFrame::scan_parquet(
-                PlRefPath::new(frames.display().to_string()),
-                Default::default(),
-            )?
-            .collect()?;
-            read = read.min(t.elapsed().as_secs_f64());
-            drop(df);
-        }
-        println!(
-            "{:<26} {:>9.1} {:>13.2} {:>14.3} {:>6.0} MiB",
-            e.name(),
-            size as f64 / 1e6,
-            r.seconds,
-            read,
-            r.rss_kib as f64 / 1024.0
-        );
-    }
-    Ok(())
 }

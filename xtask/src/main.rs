@@ -8,6 +8,7 @@ mod compare;
 mod dataset;
 mod fetch;
 mod motion;
+mod steer;
 mod train;
 
 use anyhow::{bail, Result};
@@ -44,6 +45,9 @@ enum Command {
     /// Continue a motion file (BVH, or AMC with its ASF) with a trained
     /// model: a BVH of the clip followed by generated motion.
     Continue(motion::ContinueArgs),
+    /// Steer a trained run's model along a path (a CSV of waypoints or a
+    /// built-in shape): BVH, Parquet, and the path from above.
+    Steer(steer::SteerArgs),
     /// Measure a trained run against real windows: ELBO, diversity,
     /// smoothness, bone lengths, foot skating, Fréchet distance.
     Eval(motion::EvalArgs),
@@ -68,10 +72,6 @@ enum Command {
         /// Repetitions per configuration (the best is reported).
         #[arg(long, default_value_t = 3)]
         repeat: usize,
-        /// Also build the ASF/AMC sample at 10× once per Parquet encoding
-        /// (snappy/zstd, plain/byte-stream-split floats): sizes and read times.
-        #[arg(long)]
-        encodings: bool,
     },
     /// Benchmark reading + forward kinematics + features over CMU collections,
     /// single-threaded and with all cores.
@@ -122,22 +122,34 @@ fn main() -> Result<()> {
         Command::Export(args) => motion::export(args),
         Command::Screenshot(args) => motion::screenshot(args),
         Command::Eval(args) => motion::eval(args),
+        Command::Steer(args) => steer::steer(args),
         Command::Audit(args) => audit::run(args),
         Command::Compare(args) => compare::run(args),
         Command::BenchTrain(args) => train::bench(args),
         Command::BenchSample(args) => motion::bench_sample(args),
         Command::TrainClassifier(args) => train::classifier(args),
-        Command::BenchDataset {
-            sources,
-            repeat,
-            encodings,
-        } => dataset::bench(sources, repeat, encodings),
-        Command::BenchIngest { sources, repeat } => bench_ingest(sources, repeat),
+        Command::BenchDataset { sources, repeat } => dataset::bench(sources, repeat),
+        Command::BenchIngest { sources, repeat } => {
+            let given = Some(sources).filter(|s| !s.is_empty());
+            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            let report = mocap_ingest::bench::ingest_report(
+                &given.map_or_else(shared_samples, Ok)?,
+                cores,
+                repeat,
+            )?;
+            print!("{report}");
+            Ok(())
+        }
         Command::Inspect {
             file,
             full_asf_skeleton,
             asf,
-        } => inspect(&file, full_asf_skeleton, asf),
+        } => {
+            let mut opts = Options::default();
+            opts.asf.full_skeleton = full_asf_skeleton;
+            print!("{}", mocap_ingest::describe_file(&file, asf, &opts)?);
+            Ok(())
+        }
         Command::Categories { trials, out } => mocap_ingest::category::write_table(&trials, &out)
             .map(|md| print!("{md}"))
             .map_err(anyhow::Error::msg),
@@ -174,23 +186,4 @@ pub(crate) fn shared_samples() -> Result<Vec<PathBuf>> {
         );
     }
     Ok(files.to_vec())
-}
-
-fn bench_ingest(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
-    let sources = Some(sources)
-        .filter(|s| !s.is_empty())
-        .map_or_else(shared_samples, Ok)?;
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    print!(
-        "{}",
-        mocap_ingest::bench::ingest_report(&sources, cores, repeat)?
-    );
-    Ok(())
-}
-
-fn inspect(file: &Path, full_asf_skeleton: bool, asf: Option<PathBuf>) -> Result<()> {
-    let mut opts = Options::default();
-    opts.asf.full_skeleton = full_asf_skeleton;
-    print!("{}", mocap_ingest::describe_file(file, asf, &opts)?);
-    Ok(())
 }

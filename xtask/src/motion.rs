@@ -100,6 +100,9 @@ pub struct EvalArgs {
     /// Output directory for eval.json and eval.md (default: RUN/eval).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Measure steering instead: every built-in path at the real walks' speed, followed by 64 motions from training contexts of walking (steer.json, steer.md, a picture per path).
+    #[arg(long)]
+    steer: bool,
 }
 
 /// `cargo xtask continue` options.
@@ -122,6 +125,9 @@ pub struct ContinueArgs {
     /// Continuations to write, from seeds --seed, --seed + 1, …
     #[arg(long, default_value_t = 1)]
     variations: usize,
+    /// Steer the continuation along a path (see `steer --path`); it starts at the clip's last frame, facing where the clip faces.
+    #[command(flatten)]
+    path: crate::steer::PathArgs,
 }
 
 /// `cargo xtask screenshot` options.
@@ -265,19 +271,8 @@ pub fn export(a: ExportArgs) -> Result<()> {
     let mut failed = 0;
     let mut sets = Vec::new();
     for f in &files {
-        let out = a
-            .out
-            .clone()
-            .unwrap_or_else(|| f.parent().unwrap_or(Path::new(".")).join("bvh"));
-        let done = motion_render::io::read_parquet(f)
-            .map_err(anyhow::Error::from)
-            .and_then(|motions| {
-                std::fs::create_dir_all(&out)
-                    .with_context(|| format!("creating {}", out.display()))?;
-                Ok(motion_render::bvh::write_all(&out, &motions)?)
-            });
-        match done {
-            Ok(t) => {
+        match motion_render::bvh::export_parquet(f, a.out.as_deref()) {
+            Ok((out, t)) => {
                 println!(
                     "{} -> {}/ ({} motions)",
                     f.display(),
@@ -306,22 +301,33 @@ pub fn eval(a: EvalArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| a.run.run.join("eval"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let started = std::time::Instant::now();
-    let horizon = (a.horizon > 0.0).then_some(HorizonOptions {
-        seconds: a.horizon,
-        motions: a.horizon_motions,
-    });
-    let report = report(&a.run.spec(), a.contexts, horizon, a.classifier.as_deref())?;
-    let warnings = report.warnings.iter();
-    warnings.for_each(|w| eprintln!("warning: {w}"));
-    let json = serde_json::to_string_pretty(&report)? + "\n";
-    motion_render::write_file(&out.join("eval.json"), json.as_bytes())?;
-    let md = markdown(&report);
-    motion_render::write_file(&out.join("eval.md"), md.as_bytes())?;
+    let (name, json, md) = if a.steer {
+        let (json, md) = crate::steer::eval(&a.run, motion_eval::steering::STEER_MOTIONS, &out)?;
+        ("steer", json, md)
+    } else {
+        let horizon = (a.horizon > 0.0).then_some(HorizonOptions {
+            seconds: a.horizon,
+            motions: a.horizon_motions,
+        });
+        let report = report(&a.run.spec(), a.contexts, horizon, a.classifier.as_deref())?;
+        report
+            .warnings
+            .iter()
+            .for_each(|w| eprintln!("warning: {w}"));
+        let json = serde_json::to_string_pretty(&report)? + "\n";
+        ("eval", json, markdown(&report))
+    };
+    let (json_file, md_file) = (
+        out.join(format!("{name}.json")),
+        out.join(format!("{name}.md")),
+    );
+    motion_render::write_file(&json_file, json.as_bytes())?;
+    motion_render::write_file(&md_file, md.as_bytes())?;
     print!("{md}");
     println!(
         "\nwrote {} and {} in {:.1} s",
-        out.join("eval.json").display(),
-        out.join("eval.md").display(),
+        json_file.display(),
+        md_file.display(),
         started.elapsed().as_secs_f64()
     );
     Ok(())
@@ -335,12 +341,22 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
         seed: a.run.seed,
         variations: a.variations,
         context: a.run.context,
+        path: None,
     };
     o.validate()?;
     let (_, _, clip) = mocap_ingest::clip_of_file(&a.input, a.asf.clone(), &Default::default())
         .with_context(|| format!("reading {}", a.input.display()))?;
-    let run = motion_eval::run::Run::load(&a.run.spec(), &[])?;
+    // A path's speed is checked against the training windows'.
+    let splits = &["train"][..usize::from(a.path.path.is_some())];
+    let run = motion_eval::run::Run::load(&a.run.spec(), splits)?;
     run.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
+    let o = ContinueOptions {
+        path: match a.path.path.as_deref() {
+            Some(p) => Some(motion_eval::steering::asked_path(&run, p, a.path.speed)?.0),
+            None => None,
+        },
+        ..o
+    };
     let done = continue_clip(&run, &clip.features, &o)
         .with_context(|| format!("continuing {}", a.input.display()))?;
     let stem = a.out.with_extension("");
@@ -402,14 +418,8 @@ pub fn bench_sample(a: BenchSampleArgs) -> Result<()> {
         rayon::current_num_threads(),
         motion_vrnn::bench::cpu_description()
     );
-    let t = motion_eval::speed::time_sampling(
-        &mut run,
-        a.n,
-        a.frames,
-        spec.context,
-        spec.seed,
-        a.repeat,
-    )?;
+    let (n, frames, context, seed) = (a.n, a.frames, spec.context, spec.seed);
+    let t = motion_eval::speed::time_sampling(&mut run, n, frames, context, seed, a.repeat)?;
     print!("{}", motion_eval::speed::markdown(&t));
     Ok(())
 }

@@ -75,7 +75,7 @@ pub struct TrainArgs {
     /// Window-long stretches the judge rolls its motions out for, scoring the first and the last (minute: 14; the others: 1).
     #[arg(long)]
     pub judge_stretches: Option<usize>,
-    /// What the model is conditioned on, so `sample --category walk` can ask for one: `category+pace` (minute), `category` (standard) or `none` (quick, paper).
+    /// What the model is conditioned on, so `sample --category walk` can ask for one: `category+pace+control` (minute: a model that can be steered), `category+pace`, `category` (standard) or `none` (quick, paper).
     #[arg(long)]
     pub condition: Option<ConditionOn>,
     /// Continue the run in --out from its `last` checkpoint.

@@ -54,7 +54,7 @@ pub enum SplitBy {
 }
 
 /// How the Parquet tables are compressed and how their float columns are
-/// encoded (`bench-dataset --encodings` compares them). The default,
+/// encoded (`dataset --encoding`; docs/dataset.md compares them). The default,
 /// Zstandard with byte-stream-split floats, makes `frames.parquet` 25%
 /// smaller than Snappy with plain floats (137 vs 182 MB at the size of the
 /// full CMU database); pyarrow and polars read both.

@@ -61,7 +61,7 @@ const CONDITIONED_WHAT: &str = "`motion` trained with `--preset standard` (condi
 pub const MINUTE: &str = "motion-minute";
 
 /// What [`MINUTE`] is, on the results page.
-const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` fed back to every depth at the sampling temperature, with `--condition category+pace --judge-stretches 14 --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96 --epochs 600 --early-stopping 0 --rollout-last 300 --late-root-weight 8`), asked as `motion-category` is and for its context's pace, held to that pace run by run (`--pace-gain`, 0.5) and each run chosen among 8 draws by its context's mean pose (`--draws`): **the default of `cargo xtask train`** ([training.md](training.md), \"Presets\", \"The sampler\")";
+const MINUTE_WHAT: &str = "`motion` trained with `--preset minute` (`standard` fed back to every depth at the sampling temperature, with `--condition category+pace+control --judge-stretches 14 --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96 --epochs 600 --early-stopping 0 --rollout-last 300 --late-root-weight 8`), asked as `motion-category` is and for its context's pace, held to that pace run by run (`--pace-gain`, 0.5) and each run chosen among 8 draws by its context's mean pose (`--draws`): **the default of `cargo xtask train`** ([training.md](training.md), \"Presets\", \"The sampler\")";
 
 /// The file each conditioned run's [`crate::asked::AskedSet`] is kept in.
 pub const ASKED_FILE: &str = "compare-asked.json";
@@ -126,6 +126,7 @@ pub fn compare(o: &CompareOptions, log: &dyn Fn(&str)) -> Result<String, EvalErr
         table.push((name.to_string(), runs));
     }
     let mut md = page(o, &table)?;
+    md += &steering(o, &images, log)?;
     if let Some(classifier) = &o.classifier {
         md += &conditioned(o, classifier, &images, log)?;
     }
@@ -192,6 +193,62 @@ fn evaluated(
             .map_err(|cause| EvalError::Io { path: png, cause })?;
     }
     Ok(report)
+}
+
+/// Each seed's steering report, kept beside its [`REPORT_FILE`].
+pub const STEER_FILE: &str = "compare-steer.json";
+
+/// The steering section of the page: the default's runs ([`MINUTE`], a
+/// model with the control) each measured by `eval --steer` (kept in
+/// [`STEER_FILE`], reused with [`CompareOptions::reuse_reports`]), mean ±
+/// std over the seeds, and seed 0's pictures; empty where the default's
+/// runs cannot be steered.
+fn steering(o: &CompareOptions, images: &Path, log: &dyn Fn(&str)) -> Result<String, EvalError> {
+    use crate::steering::{evaluate, seeds_markdown, SteerReport, BUILT_IN, STEER_MOTIONS};
+    let mut reports = Vec::new();
+    for seed in 0..o.seeds {
+        let dir = o.out.join(MINUTE).join(format!("seed-{seed}"));
+        let mut spec = RunSpec::best(dir.clone(), Some(o.data.clone()));
+        spec.category = Some("walk".into());
+        let Ok(run) = crate::run::Run::load(&spec, &["train"]) else {
+            return Ok(String::new());
+        };
+        if !run.meta.config.model.parts.control {
+            return Ok(String::new());
+        }
+        let kept = dir.join(STEER_FILE);
+        let report: SteerReport = match std::fs::read_to_string(&kept) {
+            Ok(text) if o.reuse_reports => serde_json::from_str(&text)?,
+            _ => {
+                let pictures = (seed == 0).then_some(images);
+                let r = evaluate(
+                    &run,
+                    STEER_MOTIONS,
+                    spec.context,
+                    0,
+                    pictures,
+                    &|m: &str| log(&format!("{MINUTE} seed {seed}: steering {m}")),
+                )?;
+                let json = serde_json::to_string_pretty(&r)? + "\n";
+                motion_render::write_file(&kept, json.as_bytes())?;
+                r
+            }
+        };
+        reports.push((seed, report));
+    }
+    let mut s = format!(
+        "\n## Steering (`{MINUTE}`, `cargo xtask eval --steer`)\n\nEach built-in path at the mean speed of the real walks \
+         ({:.2} m/s), followed by {STEER_MOTIONS} motions from training contexts of walking (the model alone, asked for walking); \
+         mean ± std over the seeds ([metrics.md](metrics.md), \"Steering\"; \"reached\" is the share of motions).\n\n",
+        reports.first().map_or(0.0, |r| r.1.walks.speed_m_s)
+    );
+    s += &seeds_markdown(&reports);
+    s += "\nSeed 0, each path from above (black) with the 64 roots over it:\n\n";
+    for p in BUILT_IN {
+        let name = p.replace(':', "-");
+        let _ = writeln!(s, "![{p}](images/results/steer-{name}.png)");
+    }
+    Ok(s)
 }
 
 /// The results page's heading of the goals met.

@@ -10,6 +10,7 @@ use mocap_ingest::Pose;
 use motion_render::Motion;
 use motion_vrnn::data::Windows;
 use motion_vrnn::generate::{continue_windows, denormalise, Rollout, CONTEXT};
+use motion_vrnn::steer::steer_windows;
 
 /// Frames per second of the features (and of the BVH written).
 pub const FPS: f64 = 30.0;
@@ -17,7 +18,7 @@ pub const FPS: f64 = 30.0;
 /// The longest continuation, in seconds (an hour: 108,000 frames).
 pub const MAX_SECONDS: f64 = 3600.0;
 
-/// How long, how many, from which seed.
+/// How long, how many, from which seed, along which path.
 #[derive(Clone, Debug)]
 pub struct ContinueOptions {
     /// Seconds of generated motion after the clip.
@@ -28,6 +29,9 @@ pub struct ContinueOptions {
     pub variations: usize,
     /// Last frames of the clip the model reads (all of it when shorter).
     pub context: usize,
+    /// A path the continuation follows from the clip's last frame (a
+    /// model with the control), or None: free.
+    pub path: Option<motion_steer::Path>,
 }
 
 impl Default for ContinueOptions {
@@ -37,6 +41,7 @@ impl Default for ContinueOptions {
             seed: 0,
             variations: 1,
             context: CONTEXT,
+            path: None,
         }
     }
 }
@@ -180,8 +185,20 @@ pub fn continue_clip(
                     }
                 },
             };
-            let x =
-                continue_windows(&run.model.model, &window, &[0], &rollout, &run.device)?.remove(0);
+            let model = &run.model.model;
+            let x = match &o.path {
+                Some(path) => {
+                    let rollout = Rollout {
+                        pace_gain: 0.0,
+                        draws: 1,
+                        ..rollout
+                    };
+                    steer_windows(model, &window, &[0], &rollout, path, stats, &run.device)?
+                        .remove(0)
+                        .frames
+                }
+                None => continue_windows(model, &window, &[0], &rollout, &run.device)?.remove(0),
+            };
             let mut frames = clip.to_vec();
             frames.extend(denormalise(&x[window.features..], stats));
             let mut motion = Motion {

@@ -17,6 +17,7 @@
 //!   the results page (mean ± std over seeds, goals met).
 //! - [`chart`]: a run's loss curves as a picture.
 //! - [`speed`]: how fast a run generates, its sampler beside the model alone.
+//! - [`steering`]: motions asked to follow a path, and how well they do.
 //!
 //! Above `motion-vrnn`, `motion-metrics` and `motion-render`; below `xtask`,
 //! which parses options, shows progress and prints what these return.
@@ -31,6 +32,7 @@ pub mod report;
 pub mod run;
 pub mod samples;
 pub mod speed;
+pub mod steering;
 
 use std::path::PathBuf;
 
@@ -64,6 +66,9 @@ pub enum EvalError {
     /// Loading or training a model failed.
     #[error(transparent)]
     Train(#[from] motion_vrnn::train::TrainError),
+    /// A path to steer along could not be read or asks too much.
+    #[error(transparent)]
+    Path(#[from] motion_steer::PathError),
     /// A tensor operation failed (its message in this one's, not also a
     /// source, so an error chain says it once).
     #[error("tensor error: {0}")]

@@ -141,6 +141,25 @@ pub fn write_all(dir: &Path, motions: &[Motion]) -> Result<Vec<RoundTrip>, Rende
         .collect()
 }
 
+/// A motions Parquet file ([`crate::io::read_parquet`]) exported with
+/// [`write_all`] into `out`, or into a `bvh/` folder beside it where `out`
+/// is None (created): the folder and the round trips.
+pub fn export_parquet(
+    file: &Path,
+    out: Option<&Path>,
+) -> Result<(std::path::PathBuf, Vec<RoundTrip>), RenderError> {
+    let dir = out.map_or_else(
+        || file.parent().unwrap_or(Path::new(".")).join("bvh"),
+        Path::to_path_buf,
+    );
+    let motions = crate::io::read_parquet(file)?;
+    std::fs::create_dir_all(&dir).map_err(|cause| RenderError::Io {
+        path: dir.clone(),
+        cause,
+    })?;
+    Ok((dir.clone(), write_all(&dir, &motions)?))
+}
+
 /// Read a BVH file back with `mocap_ingest` (every frame, no resampling) as
 /// a motion named `id`.
 pub fn read_motion(path: &Path, id: &str) -> Result<Motion, RenderError> {

@@ -163,6 +163,8 @@ pub fn time_steps(
                 (b, t, model.input),
                 device,
             )?;
+            // A model with the control reads it, as training does.
+            let x = model.with_control(&x, &[])?;
             let cond = bench_condition(&model, b, device)?;
             let mut times = Vec::new();
             for step in 0..steps.max(1) + 2 {

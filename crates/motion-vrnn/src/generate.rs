@@ -52,8 +52,9 @@ pub fn windows_of(w: &Windows) -> Vec<Vec<f32>> {
 }
 
 /// Real frames a generated motion continues ([`sample_windows`]): 16
-/// frames, about half a second at 30 fps.
-pub const CONTEXT: usize = 16;
+/// frames, about half a second at 30 fps; the frames a model's pace is
+/// trained on ([`crate::model::PACE_FRAMES`]).
+pub const CONTEXT: usize = crate::model::PACE_FRAMES;
 
 /// How generated motions are rolled out ([`sample_windows`],
 /// [`continue_windows`]).

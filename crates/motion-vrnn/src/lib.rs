@@ -34,6 +34,7 @@ pub mod model;
 pub mod optim;
 pub mod options;
 pub mod rng;
+pub mod steer;
 pub mod train;
 
 pub use model::{Config, MotionModel, Vrnn};

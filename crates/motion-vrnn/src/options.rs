@@ -62,7 +62,7 @@ impl Preset {
             Preset::Minute => Overrides {
                 feed_rounds: Some(0),
                 rollouts_at_temperature: true,
-                condition: Some(ConditionOn::CategoryPace),
+                condition: Some(ConditionOn::CategoryPaceControl),
                 judge_stretches: Some(14),
                 judge_every: Some(10),
                 inits: Some(3),
@@ -127,6 +127,10 @@ pub enum ConditionOn {
     /// The category and the pace of each window
     /// ([`crate::model::Parts::pace`]).
     CategoryPace,
+    /// The category, the pace and, at every frame, where the root goes
+    /// over the next second ([`crate::model::Parts::control`]): a model
+    /// that can be steered.
+    CategoryPaceControl,
 }
 
 impl std::str::FromStr for ConditionOn {
@@ -136,8 +140,9 @@ impl std::str::FromStr for ConditionOn {
             "none" => Ok(ConditionOn::None),
             "category" => Ok(ConditionOn::Category),
             "category+pace" => Ok(ConditionOn::CategoryPace),
+            "category+pace+control" => Ok(ConditionOn::CategoryPaceControl),
             _ => Err(format!(
-                "unknown condition {s:?}; choose `category`, `category+pace` or `none`"
+                "unknown condition {s:?}; choose `category+pace+control`, `category+pace`, `category` or `none`"
             )),
         }
     }
@@ -296,12 +301,14 @@ impl Overrides {
             Some(ConditionOn::None) => {
                 cfg.condition = None;
                 cfg.model.parts.pace = false;
+                cfg.model.parts.control = false;
             }
             Some(on) => {
                 cfg.condition = Some(crate::train::Conditioning {
                     dropout: crate::train::CONDITION_DROPOUT,
                 });
-                cfg.model.parts.pace = on == ConditionOn::CategoryPace;
+                cfg.model.parts.pace = on != ConditionOn::Category;
+                cfg.model.parts.control = on == ConditionOn::CategoryPaceControl;
             }
             None => {}
         }
@@ -480,7 +487,7 @@ mod tests {
         let motion = || crate::model::Config::named("motion").unwrap_or_default();
         let minute = Preset::Minute.for_model(motion());
         // The same as `standard` fed back to every depth at the sampling
-        // temperature, with `--condition category+pace --judge-stretches 14
+        // temperature, with `--condition category+pace+control --judge-stretches 14
         // --judge-every 10 --inits 3 --extractor 64,32 --decoder 64,96
         // --epochs 600 --early-stopping 0 --rollout-last 300
         // --late-root-weight 8`.
@@ -489,7 +496,7 @@ mod tests {
         Overrides {
             feed_rounds: Some(0),
             rollouts_at_temperature: true,
-            condition: Some(ConditionOn::CategoryPace),
+            condition: Some(ConditionOn::CategoryPaceControl),
             judge_stretches: Some(14),
             judge_every: Some(10),
             inits: Some(3),
@@ -542,12 +549,12 @@ mod tests {
             ..Default::default()
         }
         .apply(&mut none);
-        assert!(none.condition.is_none() && !none.model.parts.pace);
+        assert!(none.condition.is_none() && !none.model.parts.pace && !none.model.parts.control);
         assert!("category+pace+speed".parse::<ConditionOn>().is_err());
         assert_eq!("minute".parse::<Preset>(), Ok(Preset::Minute));
         assert_eq!(
             minute.extras(),
-            " conditioned on the category and its pace (--condition none: neither), \
+            " conditioned on the category, its pace and a path to follow (--condition none: none of them), \
              fed back to every depth at the sampling temperature, the last 300 epochs \
              through the rollout with the fed speed loss and the root's motion weighed 8, \
              judged over 14 stretches, from the best of 3 initialisations after 20 epochs"

@@ -1222,3 +1222,102 @@ fn the_fused_gradient_through_the_rollout_matches_autograd() {
         assert!(pr.iter().any(|r| r.iter().any(|v| v.abs() > 1e-3)));
     }
 }
+
+/// A model with the control ([`motion_vrnn::model::Parts::control`]):
+/// the fused rollout, with and without its gradient, matches autograd
+/// through the references with one condition row per frame; the control's
+/// weights learn; the results do not depend on the thread count; and
+/// steering with the control left free is sampling.
+#[test]
+fn the_controlled_model_matches_autograd_and_steers_freely_as_it_samples() {
+    for through in [false, true] {
+        let mut c = conditioned("motion", true).model.config().clone();
+        c.parts.pace = true;
+        c.parts.control = true;
+        c.parts.feed_rounds = Some(0);
+        c.parts.rollout_gradient = through;
+        let m = init_model(&c, 4, &Device::Cpu).unwrap();
+        randomise(&m);
+        let control = named_vars(&m.varmap)
+            .into_iter()
+            .find(|v| v.0 == motion_vrnn::model::CONTROL_WEIGHT)
+            .unwrap()
+            .1;
+        let v: Vec<f32> = Rng::new(9, 9)
+            .normals(control.elem_count())
+            .iter()
+            .map(|v| 0.2 * v)
+            .collect();
+        control
+            .set(&Tensor::from_vec(v, control.shape(), &Device::Cpu).unwrap())
+            .unwrap();
+        let (x, eps) = batch(3, 36, 12);
+        let wide = c.with_control(&x, &[true, false, true]).unwrap();
+        assert_eq!(wide.dims(), &[3, 36, 58 + motion_steer::CONTROL]);
+        // Rows 1 to 6 of a kept window are given (flag 1: a second follows
+        // the frame before them), the rest free.
+        let flags = flat(&wide.narrow(2, 58 + motion_steer::CONTROL - 1, 1).unwrap());
+        let given: Vec<usize> = (0..36).filter(|&t| flags[t] == 1.0).collect();
+        assert_eq!(given, (1..7).collect::<Vec<_>>());
+        assert!(flags[36..72].iter().all(|&f| f == 0.0));
+        let fed = feed_mask(9, 1, 3, 36, 0.5, &Device::Cpu).unwrap();
+        let cond = ask(&m, &[Some(1), Some(2), None], 1.0);
+        let g = fused_matches_reference("control", &m, &wide, &eps, fed.as_ref(), Some(&cond));
+        assert!(flat(g.get(&control).unwrap()).iter().any(|v| *v != 0.0));
+        // The same losses and gradients with 1 and 3 threads.
+        let vars: Vec<Var> = named_vars(&m.varmap).into_iter().map(|v| v.1).collect();
+        let (xb, eb) = batch(40, 36, 3);
+        let wb = c.with_control(&xb, &[]).unwrap();
+        let cb = ask(&m, &vec![Some(1); 40], 1.0);
+        let fb = feed_mask(9, 1, 40, 36, 0.5, &Device::Cpu).unwrap();
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let (l, g) = sharded(
+                    &m.model,
+                    &wb,
+                    &eb,
+                    fb.as_ref(),
+                    Some(&cb),
+                    Some((1.0, &vars)),
+                )
+                .unwrap();
+                let g = g.unwrap();
+                let g: Vec<Vec<f32>> = vars.iter().map(|v| flat(g.get(v).unwrap())).collect();
+                (l, g)
+            })
+        };
+        assert_eq!(run(1), run(3), "control: thread count");
+        // A free control is no control: the same losses as without it.
+        let l = |x: &Tensor| {
+            let l = m.model.losses(x, &eps, None, Some(&cond)).unwrap();
+            l.recon.to_scalar::<f32>().unwrap()
+        };
+        let free = c.with_control(&x, &[false; 3]).unwrap();
+        assert_eq!(l(&free), l(&x));
+        assert_ne!(l(&wide), l(&x));
+        // Steering that asks nothing is sampling, bit for bit; asking
+        // something changes the frames after the start.
+        let e = noise(1, 2, 12, 3, 8, &Device::Cpu).unwrap();
+        let start = x.narrow(1, 0, 4).unwrap();
+        let sampled = m.model.sample(&e, Some(&start), Some(&cond)).unwrap();
+        let mut none = |_: usize, _: &[Tensor]| Ok(None);
+        let steered = m
+            .model
+            .steer(&e, Some(&start), Some(&cond), &mut none)
+            .unwrap();
+        assert_eq!(flat(&sampled), flat(&steered));
+        let row = wide.narrow(1, 3, 1).unwrap().squeeze(1).unwrap();
+        let row = row.narrow(1, 58, motion_steer::CONTROL).unwrap();
+        let mut asked = |t: usize, _: &[Tensor]| Ok((t >= 4).then(|| row.clone()));
+        let steered = m
+            .model
+            .steer(&e, Some(&start), Some(&cond), &mut asked)
+            .unwrap();
+        let cut = |t: &Tensor| flat(&t.narrow(1, 5, 7).unwrap());
+        assert_ne!(cut(&sampled), cut(&steered));
+    }
+}

@@ -7,6 +7,10 @@ use super::*;
 /// `vel_x`, `vel_z`, `ang_vel_y`, the last three.
 pub const ROOT_FEATURES: std::ops::Range<usize> = VEL_X..ANG_VEL_Y + 1;
 
+/// The frames a window's pace is read from: its first, the context a
+/// generated motion continues (`generate::CONTEXT` is this).
+pub const PACE_FRAMES: usize = 16;
+
 /// The normalised features whose means make the pace ([`Parts::pace`]):
 /// `root_y`, `vel_x`, `vel_z`, `ang_vel_y`.
 pub const PACE_FEATURES: [usize; 4] = [ROOT_Y, VEL_X, VEL_Z, ANG_VEL_Y];

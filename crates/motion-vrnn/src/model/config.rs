@@ -148,6 +148,16 @@ pub struct Parts {
     /// epochs ([`crate::train::TrainConfig::late_root_weight`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub root_weight: Option<f64>,
+    /// The control: each frame also reads where the root is asked to be
+    /// over the next second ([`motion_steer::CONTROL`]: its position and
+    /// facing 10, 20 and 30 frames ahead, in the character's own axes),
+    /// through its own weights added to the condition's rows. Training
+    /// reads it from the frames that follow and leaves it free (zeros) in a
+    /// share of the windows ([`crate::train::CONTROL_DROPOUT`]); generation
+    /// leaves it free unless a path is asked (`motion_steer::Follower`).
+    /// Needs [`Config::categories`] and the skeleton's statistics.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub control: bool,
 }
 
 impl Parts {
@@ -243,6 +253,7 @@ impl Config {
     pub fn name(&self) -> Option<&'static str> {
         let plain = |p: &Parts| Parts {
             pace: false,
+            control: false,
             feed_rounds: None,
             rollouts_at_temperature: false,
             fed_speed: None,
@@ -260,7 +271,8 @@ impl Config {
     /// and feet parts, the feature statistics and the mean bone lengths of `train`
     /// (normalised windows, `n × T × input`).
     pub fn fit_to(&mut self, mean: &[f64], std: &[f64], train: &[f32]) {
-        if !self.parts.skeleton && self.parts.feet <= 0.0 && !self.parts.foot_lock {
+        let p = &self.parts;
+        if !p.skeleton && p.feet <= 0.0 && !p.foot_lock && !p.control {
             self.body = None;
             return;
         }

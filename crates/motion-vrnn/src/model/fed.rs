@@ -100,9 +100,11 @@ impl Vrnn {
         let (xs, fs, eq, ep) = (steps(x)?, steps(i.feat)?, steps(i.eps)?, steps(i.e)?);
         let ms = steps(&i.mask.unsqueeze(D::Minus1)?)?;
         let ls = lengths.map(steps).transpose()?;
-        // The condition's rows, one per sequence.
-        let bias = i.bias.map(Bias::per_sequence).transpose()?;
-        let st = Steps::new(self, bias.as_ref())?;
+        // The condition's rows, one per sequence (and per step with the
+        // control).
+        let per_frame = i.bias.is_some_and(Bias::per_frame);
+        let bias = i.bias.map(|b| b.at_step(0)).transpose()?;
+        let first = Steps::new(self, bias.as_ref())?;
         let (rho, rho_out) = (c.parts.latent_filter, c.parts.output_filter);
         let mut h = Tensor::zeros((x.dim(0)?, c.hidden), DType::F32, x.device())?;
         let mut cell = h.clone();
@@ -110,6 +112,15 @@ impl Vrnn {
             (None, None, None);
         let mut fed = Vec::with_capacity(t);
         for step in 0..t {
+            let stepped = match i.bias.filter(|_| per_frame && step > 0) {
+                Some(b) => Some(b.at_step(step)?),
+                None => None,
+            };
+            let steps_t = stepped
+                .as_ref()
+                .map(|b| Steps::new(self, Some(b)))
+                .transpose()?;
+            let st = steps_t.as_ref().unwrap_or(&first);
             let (xt, ft) = (xs.get(step)?, fs.get(step)?);
             // The posterior reads the real frame; its z goes to the LSTM.
             let zq = draw(&st.posterior(&ft, &h)?, &eq.get(step)?, c.latent)?;

@@ -4,18 +4,25 @@
 use super::*;
 
 impl Vrnn {
-    /// [`MotionModel::sample`].
+    /// [`MotionModel::steer`]; [`MotionModel::sample`] with the control
+    /// left free.
     pub(super) fn generate(
         &self,
         eps: &Tensor,
         start: Option<&Tensor>,
         cond: Option<&Tensor>,
+        control: &mut Control,
     ) -> Result<Tensor> {
         let c = &self.config;
         let (t, b, _) = eps.dims3()?;
         let dev = eps.device();
-        let bias = self.bias(cond, start)?;
-        let st = Steps::new(self, bias.as_ref())?;
+        let start = start
+            .map(|s| self.split_control(s))
+            .transpose()?
+            .map(|s| s.0);
+        let start = start.as_ref();
+        let bias = self.bias(cond, start, None)?;
+        let free = Steps::new(self, bias.as_ref())?;
         let k = start.map_or(Ok(0), |s| s.dim(1))?;
         // Bone lengths: the start frames' own skeleton, else the training
         // set's mean skeleton.
@@ -34,6 +41,17 @@ impl Vrnn {
         // The last start frame's pose minus the decoder's ([`SEAM_FRAMES`]).
         let mut seam: Option<Tensor> = None;
         for step in 0..t {
+            // The step's control, where one is asked: its rows join the
+            // condition's for this step.
+            let asked = match control(step, &frames)? {
+                Some(k) => Some(self.stepped_bias(bias.as_ref(), &k)?),
+                None => None,
+            };
+            let steered = asked
+                .as_ref()
+                .map(|a| Steps::new(self, Some(a)))
+                .transpose()?;
+            let st = steered.as_ref().unwrap_or(&free);
             let e = eps.get(step)?;
             // A real start frame is read through the posterior; later frames
             // draw z from the prior (N(0, I) at the first step).

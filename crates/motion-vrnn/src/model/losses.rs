@@ -2,11 +2,11 @@
 
 use super::*;
 
-/// The frames a window's pace is read from: its first
-/// [`crate::generate::CONTEXT`], the frames generation reads its pace from,
-/// so that training asks for the pace sampling asks for.
+/// The frames a window's pace is read from: its first [`PACE_FRAMES`], the
+/// context generation reads its pace from, so that training asks for the
+/// pace sampling asks for.
 fn context_of(x: &Tensor) -> Result<Tensor> {
-    x.narrow(1, 0, x.dim(1)?.min(crate::generate::CONTEXT))
+    x.narrow(1, 0, x.dim(1)?.min(PACE_FRAMES))
 }
 
 impl MotionModel for Vrnn {
@@ -21,12 +21,14 @@ impl MotionModel for Vrnn {
         feed: Option<&Tensor>,
         cond: Option<&Tensor>,
     ) -> Result<Losses> {
+        let (x, ctl) = self.split_control(x)?;
+        let x = &x;
         let b = x.dim(0)? as f64;
         let eps = eps.transpose(0, 1)?.contiguous()?;
         let lengths = self.window_bones(x)?;
         let feat = self.features(x)?;
         let bias = self
-            .bias(cond, Some(&context_of(x)?))?
+            .bias(cond, Some(&context_of(x)?), ctl.as_ref())?
             .map(|b| b.over_time())
             .transpose()?;
         let bias = bias.as_ref();
@@ -89,10 +91,12 @@ impl MotionModel for Vrnn {
     }
 
     fn reconstruct(&self, x: &Tensor, cond: Option<&Tensor>) -> Result<Tensor> {
+        let (x, ctl) = self.split_control(x)?;
+        let x = &x;
         let (b, t, _) = x.dims3()?;
         let zero = Tensor::zeros((b, t, self.config.latent), DType::F32, x.device())?;
         let bias = self
-            .bias(cond, Some(&context_of(x)?))?
+            .bias(cond, Some(&context_of(x)?), ctl.as_ref())?
             .map(|b| b.over_time())
             .transpose()?;
         // With ε = 0 the posterior sample is its mean.
@@ -107,6 +111,16 @@ impl MotionModel for Vrnn {
         start: Option<&Tensor>,
         cond: Option<&Tensor>,
     ) -> Result<Tensor> {
-        self.generate(eps, start, cond)
+        self.generate(eps, start, cond, &mut |_, _| Ok(None))
+    }
+
+    fn steer(
+        &self,
+        eps: &Tensor,
+        start: Option<&Tensor>,
+        cond: Option<&Tensor>,
+        control: &mut Control,
+    ) -> Result<Tensor> {
+        self.generate(eps, start, cond, control)
     }
 }

@@ -49,14 +49,16 @@ pub use crate::blocks::SIGMA_MIN;
 
 mod condition;
 mod config;
+mod control;
 mod fed;
 mod generate;
 mod losses;
 mod step;
 mod vrnn;
 
-pub use condition::{pace, PACE_FEATURES, ROOT_FEATURES};
+pub use condition::{pace, PACE_FEATURES, PACE_FRAMES, ROOT_FEATURES};
 pub use config::{Body, Config, Parts};
+pub use control::{Control, CONTROL_WEIGHT};
 pub use fed::{fed_speed_loss, FED_SPEED_FLOOR};
 pub use vrnn::Vrnn;
 
@@ -165,6 +167,15 @@ pub trait MotionModel: Send + Sync {
     /// [`Parts::temperature`].
     fn sample(&self, eps: &Tensor, start: Option<&Tensor>, cond: Option<&Tensor>)
         -> Result<Tensor>;
+    /// [`MotionModel::sample`] with the control ([`Parts::control`]) asked
+    /// at each step by `control` (None: left free, as `sample` leaves it).
+    fn steer(
+        &self,
+        eps: &Tensor,
+        start: Option<&Tensor>,
+        cond: Option<&Tensor>,
+        control: &mut Control,
+    ) -> Result<Tensor>;
 }
 
 pub use crate::blocks::feet::CONTACT_UNITS;

@@ -50,10 +50,15 @@ pub struct Vrnn {
     /// of the prior and of the decoder's first layer ([`Bias`]). None in an
     /// unconditioned model.
     pub(super) cond: Option<Tensor>,
+    /// The control's weights `[CONTROL, 2Z + 4H + 2Z + d1]` ([`Parts::control`]):
+    /// each frame's control times them is added to that frame's rows of the
+    /// condition ([`Vrnn::bias`]). None without the control.
+    pub(super) control: Option<Tensor>,
 }
 
 /// One sequence's row of the condition table, cut into what it is added to
-/// (`[B or 1, ·]` each).
+/// (`[B or 1, ·]` each; `[B, T, ·]` with the control).
+#[derive(Clone)]
 pub(super) struct Bias {
     /// The recurrence's per-row input: posterior `2Z`, then gates `4H`.
     pub(super) pre: Tensor,
@@ -73,8 +78,12 @@ impl Bias {
         }
     }
 
-    /// The same rows for sequences `[B, T, ·]`.
+    /// The same rows for sequences `[B, T, ·]` (`[B, 1, ·]`, or as they
+    /// are where they are one per frame already: a model with the control).
     pub(super) fn over_time(&self) -> Result<Bias> {
+        if self.per_frame() {
+            return Ok(self.clone());
+        }
         Ok(Bias {
             pre: self.pre.unsqueeze(1)?,
             prior: self.prior.unsqueeze(1)?,
@@ -82,12 +91,21 @@ impl Bias {
         })
     }
 
-    /// Rows made [`Bias::over_time`] back to one per sequence.
-    pub(super) fn per_sequence(&self) -> Result<Bias> {
+    /// One row per frame (`[B, T, ·]`), not per sequence.
+    pub(super) fn per_frame(&self) -> bool {
+        self.pre.rank() == 3 && self.pre.dim(1).is_ok_and(|t| t > 1)
+    }
+
+    /// Step `t`'s rows of [`Bias::over_time`]'s, one per sequence.
+    pub(super) fn at_step(&self, t: usize) -> Result<Bias> {
+        let row = |v: &Tensor| {
+            let k = if v.dim(1)? > 1 { t } else { 0 };
+            v.narrow(1, k, 1)?.squeeze(1)
+        };
         Ok(Bias {
-            pre: self.pre.squeeze(1)?,
-            prior: self.prior.squeeze(1)?,
-            decoder: self.decoder.squeeze(1)?,
+            pre: row(&self.pre)?,
+            prior: row(&self.prior)?,
+            decoder: row(&self.decoder)?,
         })
     }
 }
@@ -95,8 +113,21 @@ impl Bias {
 /// `x` plus the bias where there is one.
 pub(super) fn plus(x: Tensor, bias: Option<&Tensor>) -> Result<Tensor> {
     match bias {
-        Some(b) => add_rows(&x, b, Act::None),
+        Some(b) => add_bias(&x, b, Act::None),
         None => Ok(x),
+    }
+}
+
+/// `act(y + r)`: [`add_rows`] where `r` has one row per sequence, a plain
+/// sum where it has one per frame ([`Parts::control`]).
+pub(super) fn add_bias(y: &Tensor, r: &Tensor, act: Act) -> Result<Tensor> {
+    if r.rank() < 3 || r.dim(1)? == 1 {
+        return add_rows(y, r, act);
+    }
+    let s = (y + r)?;
+    match act {
+        Act::None => Ok(s),
+        Act::Relu => s.relu(),
     }
 }
 
@@ -147,6 +178,11 @@ impl Vrnn {
                 "the fed speed loss needs the skeleton's statistics (a skeletal model)"
             );
         }
+        if c.parts.control && (c.categories.is_empty() || c.body.is_none()) {
+            candle_core::bail!(
+                "the control needs a model conditioned on the category, with the training set's statistics"
+            );
+        }
         if c.parts.rollout_gradient && c.parts.rounds() != 0 {
             candle_core::bail!(
                 "the gradient through the rollout needs feeding back to every depth (feed_rounds 0, the minute preset's)"
@@ -185,6 +221,14 @@ impl Vrnn {
                     candle_nn::Init::Const(0.0),
                 )?),
             },
+            control: match c.parts.control {
+                false => None,
+                true => Some(vb.get_with_hints(
+                    (motion_steer::CONTROL, 4 * c.latent + h4 + d1),
+                    CONTROL_WEIGHT,
+                    candle_nn::Init::Const(0.0),
+                )?),
+            },
         })
     }
 
@@ -195,6 +239,7 @@ impl Vrnn {
         &self,
         cond: Option<&Tensor>,
         frames: Option<&Tensor>,
+        ctl: Option<&Tensor>,
     ) -> Result<Option<Bias>> {
         let c = &self.config;
         let cond = c.paced(cond, frames)?;
@@ -215,11 +260,18 @@ impl Vrnn {
             }
             None => table.narrow(0, 0, 1)?,
         };
+        // With a control, one row per frame: the sequence's plus the control's.
+        let e = match ctl.map(|k| self.control_rows(k)).transpose()?.flatten() {
+            Some(r) if r.rank() == 3 => r.broadcast_add(&e.unsqueeze(1)?)?,
+            Some(r) => r.broadcast_add(&e)?,
+            None => e,
+        };
         let (pre, prior) = (2 * c.latent + 4 * c.hidden, 2 * c.latent);
+        let d = e.rank() - 1;
         Ok(Some(Bias {
-            pre: e.narrow(1, 0, pre)?,
-            prior: e.narrow(1, pre, prior)?,
-            decoder: e.narrow(1, pre + prior, c.decoder[0])?,
+            pre: e.narrow(d, 0, pre)?,
+            prior: e.narrow(d, pre, prior)?,
+            decoder: e.narrow(d, pre + prior, c.decoder[0])?,
         }))
     }
 
@@ -242,6 +294,7 @@ impl Vrnn {
             b_ih: self.b_ih.detach(),
             b_hh: self.b_hh.detach(),
             cond: self.cond.as_ref().map(Tensor::detach),
+            control: self.control.as_ref().map(Tensor::detach),
         }
     }
 
@@ -302,8 +355,23 @@ impl Vrnn {
             ],
             0,
         )?;
+        // Rows per frame (the control) join the products; rows per
+        // sequence are the recurrence's to add.
+        let (pre, rows) = match bias.filter(|b| b.per_frame()) {
+            Some(b) => {
+                let mut at = 0;
+                let mut out = Vec::with_capacity(pre.len());
+                for p in pre {
+                    let w = p.dim(D::Minus1)?;
+                    out.push((p + b.pre.narrow(D::Minus1, at, w)?)?);
+                    at += w;
+                }
+                (out, None)
+            }
+            None => (pre, bias.map(|b| &b.pre)),
+        };
         let pre: Vec<&Tensor> = pre.iter().collect();
-        let s = latent_lstm(&pre, bias.map(|b| &b.pre), eps, &w, self.dims())?;
+        let s = latent_lstm(&pre, rows, eps, &w, self.dims())?;
         Ok(Scan {
             h: s.narrow(D::Minus1, 0, h)?,
             q: s.narrow(D::Minus1, h, 2 * z)?,
@@ -316,7 +384,7 @@ impl Vrnn {
     pub(super) fn decode_raw(&self, z: &Tensor, h: &Tensor, bias: Option<&Bias>) -> Result<Tensor> {
         let u = Tensor::cat(&[z, h], D::Minus1)?;
         let a = match bias {
-            Some(b) => add_rows(
+            Some(b) => add_bias(
                 &self.decoder[0].forward(&u, Act::None)?,
                 &b.decoder,
                 Act::Relu,

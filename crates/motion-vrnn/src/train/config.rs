@@ -106,6 +106,12 @@ pub struct Conditioning {
 /// The default share of windows trained without their category (MDM's).
 pub const CONDITION_DROPOUT: f64 = 0.1;
 
+/// Share of the training windows whose control is left free at each step
+/// ([`crate::model::Parts::control`]), drawn apart from the category's
+/// dropout, so the model learns both to follow a path and to choose its
+/// own way.
+pub const CONTROL_DROPOUT: f64 = 0.3;
+
 /// How training chooses its `best` checkpoint.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -207,9 +213,11 @@ impl TrainConfig {
     pub fn extras(&self) -> String {
         let mut s = String::new();
         if self.condition.is_some() {
-            s += match self.model.parts.pace {
-                true => " conditioned on the category and its pace (--condition none: neither)",
-                false => " conditioned on the category (--condition none: without)",
+            let p = &self.model.parts;
+            s += match (p.pace, p.control) {
+                (true, true) => " conditioned on the category, its pace and a path to follow (--condition none: none of them)",
+                (true, false) => " conditioned on the category and its pace (--condition none: neither)",
+                _ => " conditioned on the category (--condition none: without)",
             };
         }
         let every_depth = self.model.parts.self_feed > 0.0 && self.model.parts.rounds() == 0;

@@ -122,7 +122,7 @@ impl Epochs<'_> {
         let (mut sum_r, mut sum_k, mut seen) = (0.0f64, 0.0f64, 0usize);
         for chunk in perm.chunks(config.batch) {
             let step = adam.step + 1;
-            let x = train.batch(chunk, device)?;
+            let x = self.batch_control(&train.batch(chunk, device)?, step)?;
             let eps = noise(
                 config.seed,
                 step,
@@ -170,6 +170,21 @@ impl Epochs<'_> {
         }
         let train_secs = started.elapsed().as_secs_f64();
         self.metrics(t, adam, epoch, (kl_w, lr), (sum_r, sum_k, seen), train_secs)
+    }
+
+    /// The windows `x` with their control ([`Config::with_control`]), left
+    /// free in the share [`CONTROL_DROPOUT`] drawn from the seed and step
+    /// (`x` as it is without the control).
+    pub(super) fn batch_control(&self, x: &Tensor, step: u64) -> Result<Tensor, TrainError> {
+        let model = &self.config.model;
+        if !model.parts.control {
+            return Ok(x.clone());
+        }
+        let mut rng = Rng::new(self.config.seed ^ 0xC047_0000_0000, step);
+        let keep: Vec<bool> = (0..x.dim(0)?)
+            .map(|_| rng.uniform() >= CONTROL_DROPOUT)
+            .collect();
+        Ok(model.with_control(x, &keep)?)
     }
 
     /// The condition weights of the training windows `chunk` at step

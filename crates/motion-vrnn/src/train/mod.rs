@@ -30,7 +30,7 @@ mod epoch;
 pub use checkpoint::{layout, load_model, read_meta, unknown_settings, CheckpointMeta};
 pub use config::{
     feed_mask, Conditioning, InitChoice, Inits, Select, TrainConfig, CONDITION_DROPOUT,
-    INIT_EPOCHS, LATE_SPEED_WEIGHT,
+    CONTROL_DROPOUT, INIT_EPOCHS, LATE_SPEED_WEIGHT,
 };
 
 use checkpoint::{append_metrics, restore, resumable, rewrite_metrics, save_checkpoint, RunState};
@@ -121,8 +121,9 @@ pub fn init_model(config: &Config, seed: u64, device: &Device) -> Result<Trained
 /// Fill every variable of `varmap`, in name order, with
 /// `U(−1/√fan_in, 1/√fan_in)` drawn from `seed`: a `….weight`'s fan-in is
 /// its second dimension, a `….bias` takes its weight's, and `fixed(name)`
-/// overrides both where it returns one. The condition table
-/// ([`crate::model::COND_WEIGHT`]) keeps its zeros and draws nothing, so
+/// overrides both where it returns one. The condition table and the
+/// control's weights ([`crate::model::COND_WEIGHT`],
+/// [`crate::model::CONTROL_WEIGHT`]) keep their zeros and draw nothing, so
 /// the other variables get the values they get without it.
 pub fn init_uniform(
     varmap: &VarMap,
@@ -138,7 +139,8 @@ pub fn init_uniform(
         .map(|(n, v)| (n.clone(), v.dims().get(1).copied().unwrap_or(1)))
         .collect();
     let mut rng = Rng::new(seed, 0x1417);
-    for (name, var) in vars.iter().filter(|(n, _)| n != crate::model::COND_WEIGHT) {
+    let zero = [crate::model::COND_WEIGHT, crate::model::CONTROL_WEIGHT];
+    for (name, var) in vars.iter().filter(|(n, _)| !zero.contains(&n.as_str())) {
         let fan = fixed(name).unwrap_or_else(|| {
             let w = name.replace(".bias", ".weight");
             fan_in.get(&w).copied().unwrap_or(1)
@@ -289,7 +291,9 @@ pub fn evaluate(
     let mut kl = 0.0;
     let idx: Vec<usize> = (0..windows.n).collect();
     for (k, chunk) in idx.chunks(batch.max(1)).enumerate() {
-        let x = windows.batch(chunk, device)?;
+        let x = model
+            .config()
+            .with_control(&windows.batch(chunk, device)?, &[])?;
         let eps = noise(
             seed ^ 0xE7A1,
             k as u64,

@@ -79,17 +79,6 @@ fn relu_back(g: &mut [f32], y: &[f32]) {
     }
 }
 
-/// Which row of a condition's slice `len` long, rows `w` wide, sequence
-/// `s` reads (one shared row, or one per sequence).
-#[inline(always)]
-fn crow(len: usize, w: usize, s: usize) -> usize {
-    if len == w {
-        0
-    } else {
-        s * w
-    }
-}
-
 /// The sizes [`fed_backward`] reads, and the filters' gains.
 #[derive(Clone, Copy)]
 struct Dims {
@@ -319,7 +308,7 @@ impl<'a> Back<'a> {
             let dg = &dgs[r * h4..(r + 1) * h4];
             add(&mut gr.b_gates, dg);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
-                let at = crow(c.pre.len(), z2 + h4, s);
+                let at = cond_at(c.pre.len(), z2 + h4, b, s, t);
                 add(&mut gc[0][at + z2..at + z2 + h4], dg);
             }
         }
@@ -503,7 +492,7 @@ impl<'a> Back<'a> {
             relu_back(g1, &tape.a1[r * d[0].out..(r + 1) * d[0].out]);
             add(&mut gr.decoder[0].b, g1);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
-                let at = crow(c.decoder.len(), d[0].out, s);
+                let at = cond_at(c.decoder.len(), d[0].out, b, s, t);
                 add(&mut gc[2][at..at + d[0].out], g1);
             }
         }
@@ -568,7 +557,7 @@ impl<'a> Back<'a> {
                 let dp = &dps[r * z2..(r + 1) * z2];
                 add(&mut gr.prior.b, dp);
                 if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
-                    let at = crow(c.prior.len(), z2, s);
+                    let at = cond_at(c.prior.len(), z2, b, s, t);
                     add(&mut gc[1][at..at + z2], dp);
                 }
             }
@@ -582,7 +571,7 @@ impl<'a> Back<'a> {
             let de = &des[r * z2..(r + 1) * z2];
             add(&mut gr.encoder.b, de);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
-                let at = crow(c.pre.len(), z2 + h4, s);
+                let at = cond_at(c.pre.len(), z2 + h4, b, s, t);
                 add(&mut gc[0][at..at + z2], de);
             }
         }

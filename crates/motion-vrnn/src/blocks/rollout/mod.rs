@@ -95,14 +95,31 @@ pub struct Shard<'a> {
     pub cond: Option<Cond<'a>>,
 }
 
-/// `dst` rows (`n` wide) ← `bias` (+ the condition row of each sequence).
+/// Where the condition row of sequence `s` (of `b`) at step `t` starts in
+/// a slice `len` long of rows `w` wide: one row for all, one per sequence
+/// (`[B, ·]`), or one per sequence and step (`[B, T, ·]`, a model with the
+/// control).
 #[inline(always)]
-fn fill(dst: &mut [f32], bias: &[f32], cond: Option<(&[f32], usize)>, n: usize) {
+pub(super) fn cond_at(len: usize, w: usize, b: usize, s: usize, t: usize) -> usize {
+    if len == w {
+        0
+    } else if len == b * w {
+        s * w
+    } else {
+        (s * (len / (b * w)) + t) * w
+    }
+}
+
+/// `dst` rows (`n` wide, one per sequence) ← `bias` (+ each sequence's
+/// condition row at step `t`).
+#[inline(always)]
+fn fill(dst: &mut [f32], bias: &[f32], cond: Option<(&[f32], usize)>, n: usize, t: usize) {
+    let b = dst.len() / n.max(1);
     for (s, row) in dst.chunks_exact_mut(n).enumerate() {
         row.copy_from_slice(bias);
         if let Some((c, width)) = cond {
-            let r = if c.len() == width { 0 } else { s };
-            for (v, a) in row.iter_mut().zip(&c[r * width..r * width + n]) {
+            let at = cond_at(c.len(), width, b, s, t);
+            for (v, a) in row.iter_mut().zip(&c[at..at + n]) {
                 *v += a;
             }
         }
@@ -176,11 +193,14 @@ fn layer(
     dst: &mut [f32],
     a: &[f32],
     l: (&Rhs, &[f32]),
-    cond: Option<(&[f32], usize)>,
+    cond: Option<(&[f32], usize, usize)>,
     relu: bool,
 ) {
     let n = l.0.n;
-    fill(&mut dst[..m * n], l.1, cond, n);
+    match cond {
+        Some((c, w, t)) => fill(&mut dst[..m * n], l.1, Some((c, w)), n, t),
+        None => fill(&mut dst[..m * n], l.1, None, n, 0),
+    }
     l.0.acc(m, dst, a);
     if relu {
         dst[..m * n].iter_mut().for_each(|v| *v = v.max(0.0));
@@ -432,7 +452,7 @@ impl<'a> Fwd<'a> {
         } = self;
         // The posterior: e = enc_x + b (+ condition) + h · W_eᵀ; the prior:
         // p = b (+ condition) + h · W_pᵀ.
-        fill(e, &net.encoder.b, c_pre, z2);
+        fill(e, &net.encoder.b, c_pre, z2, t);
         for s in 0..b {
             let x = &enc_x[at(s) * z2..(at(s) + 1) * z2];
             e[s * z2..(s + 1) * z2]
@@ -440,7 +460,7 @@ impl<'a> Fwd<'a> {
                 .zip(x)
                 .for_each(|(v, a)| *v += a);
         }
-        fill(p, &net.prior.b, c_prior, z2);
+        fill(p, &net.prior.b, c_prior, z2, t);
         if t > 0 {
             enc_h.acc(b, e, hs);
             prior.acc(b, p, hs);
@@ -500,7 +520,14 @@ impl<'a> Fwd<'a> {
         } = self;
         let d = &net.decoder;
         // The decoder, and its output filter.
-        layer(b, a1, u, (&dec[0], &d[0].b), c_dec, true);
+        layer(
+            b,
+            a1,
+            u,
+            (&dec[0], &d[0].b),
+            c_dec.map(|(c, w)| (c, w, t)),
+            true,
+        );
         layer(b, a2, a1, (&dec[1], &d[1].b), None, true);
         layer(b, o, a2, (&dec[2], &d[2].b), None, false);
         for (v, a) in of.iter_mut().zip(o.iter()) {
@@ -663,8 +690,8 @@ impl<'a> Fwd<'a> {
         // The gates: + condition + z · W_zᵀ + h · W_hᵀ, then the cell.
         if let Some((c, w)) = c_pre {
             for s in 0..b {
-                let r = if c.len() == w { 0 } else { s };
-                let row = &c[r * w + z2..(r + 1) * w];
+                let at = cond_at(c.len(), w, b, s, t);
+                let row = &c[at + z2..at + w];
                 g[s * h4..(s + 1) * h4]
                     .iter_mut()
                     .zip(row)
@@ -738,7 +765,8 @@ impl Grads {
 /// (`w`, `b` of φ₁, φ₂, the encoder `[μ | logit σ]`, the prior, the
 /// decoder's three layers, then `W_ih`, `W_hh`, `b_ih + b_hh`), whose
 /// values `net` holds; the condition's rows `[n, 1, pre | prior | decoder]`
-/// (anything, unused, without a condition).
+/// (`n` = 1 or `B`) or `[B, T, ·]` (a model with the control; anything,
+/// unused, without a condition).
 pub struct RolloutOp {
     pub net: Net,
     pub b: usize,
