@@ -921,3 +921,90 @@ fn val_references_never_read_a_test_window() {
     assert_eq!(real_windows("val"), train_n + val_n);
     assert_eq!(real_windows("test"), train_n + val_n + test_n);
 }
+
+/// The default run reads the control: `steer` follows a built-in path and
+/// writes its BVH, Parquet and picture; `continue --path` steers a clip;
+/// `eval --steer` measures every built-in path; a path file that does not
+/// parse, a speed the data does not hold and a run without the control are
+/// refused with what to do.
+#[test]
+fn a_run_with_the_control_steers_and_says_what_it_cannot() {
+    integration_tests::require_samples!();
+    let tmp = tempfile::tempdir().unwrap();
+    let (_, run, meta) = conditioned_run(tmp.path(), "category+pace+control");
+    assert_eq!(meta["config"]["model"]["parts"]["control"], true);
+    let steer = |extra: &[&str]| {
+        xtask()
+            .arg("steer")
+            .arg("--run")
+            .arg(&run)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let out = tmp.path().join("s").join("line.bvh");
+    let o = steer(&[
+        "--path",
+        "line:3",
+        "--n",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("path error"));
+    for f in ["line_0.bvh", "line_1.bvh", "line.parquet", "line.png"] {
+        assert!(tmp.path().join("s").join(f).is_file(), "{f}");
+    }
+    let bad = tmp.path().join("bad.csv");
+    std::fs::write(&bad, "x,z\n0,0\n1,abc\n").unwrap();
+    let refused = |args: &[&str], expected: &str| {
+        let o = steer(&[args, &["--out", out.to_str().unwrap()]].concat());
+        assert!(!o.status.success());
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(e.contains(expected), "{e}");
+    };
+    refused(&["--path", bad.to_str().unwrap()], "bad.csv:3: expected");
+    refused(&["--path", "line:3", "--speed", "50"], "ask at most");
+    refused(&["--path", "spiral:3"], "the built-ins are");
+    let clip = extract(
+        "cmu-bvh-sample.zip",
+        "cmu-bvh-motionbuilder/02/02_01.bvh",
+        &tmp.path().join("in"),
+    );
+    let o = xtask()
+        .args(["continue", "--seconds", "2", "--path", "line:1", "--input"])
+        .arg(&clip)
+        .arg("--run")
+        .arg(&run)
+        .arg("--out")
+        .arg(tmp.path().join("c.bvh"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let e = tmp.path().join("e");
+    let o = xtask()
+        .args(["eval", "--steer", "--run"])
+        .arg(&run)
+        .arg("--out")
+        .arg(&e)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(e.join("steer.json")).unwrap()).unwrap();
+    assert_eq!(report["paths"].as_array().unwrap().len(), 4);
+    assert!(e.join("steer-zigzag-4.png").is_file());
+    // A run without the control cannot follow a path.
+    let (_, paced, _) = conditioned_run(&tmp.path().join("p"), "category+pace");
+    let o = xtask()
+        .args(["steer", "--path", "line:3", "--out", "x.bvh", "--run"])
+        .arg(&paced)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("trained without the control"),
+        "{e}"
+    );
+}

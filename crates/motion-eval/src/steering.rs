@@ -237,6 +237,11 @@ pub fn score(name: &str, path: &Path, steered: &[Steered], poses: &[Vec<Pose>]) 
 /// the mean speed of the run's real walks, with those walks; refused above
 /// the fastest training window's speed.
 pub fn asked_path(run: &Run, spec: &str, speed: Option<f64>) -> Result<(Path, Walks), EvalError> {
+    if !run.meta.config.model.parts.control {
+        return Err(EvalError::Invalid(
+            "this model was trained without the control, so it cannot follow a path; train one with `cargo xtask train` (the default, `--condition category+pace+control`)".into(),
+        ));
+    }
     let walks = run.walks()?;
     let path = parse_path(spec, speed.unwrap_or(walks.speed_m_s))?;
     path.check_speed(walks.fastest_m_s)?;

@@ -74,7 +74,7 @@ pub enum PathError {
     },
     /// A speed faster than the training data holds.
     #[error(
-        "speed {speed} m/s is above the fastest the data holds ({max} m/s); ask at most {max}"
+        "speed {speed} m/s is above the fastest the data holds ({max:.2} m/s, its fastest training window); ask at most {max:.2}"
     )]
     TooFast {
         /// The fastest speed asked, m/s.

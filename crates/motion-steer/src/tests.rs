@@ -143,7 +143,7 @@ fn each_mistake_says_what_to_do() {
     assert!(p.check_speed(2.5).is_ok());
     assert_eq!(
         p.check_speed(2.0).unwrap_err().to_string(),
-        "speed 2.5 m/s is above the fastest the data holds (2 m/s); ask at most 2"
+        "speed 2.5 m/s is above the fastest the data holds (2.00 m/s, its fastest training window); ask at most 2.00"
     );
 }
 
