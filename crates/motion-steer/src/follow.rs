@@ -11,6 +11,10 @@ pub const WINDOW_M: f64 = 1.5;
 /// Progress this close to the end (metres) has finished the path.
 pub const REACHED_M: f64 = 0.05;
 
+/// The most the targets move ahead of the root's progress when it is
+/// behind the path's schedule (metres).
+pub const LEAD_M: f64 = 0.5;
+
 /// Progress this close to a wait's point (metres) starts the wait: wider
 /// than [`REACHED_M`], so a root that stops a little short is not left
 /// waiting for a wait that never starts.
@@ -27,6 +31,9 @@ pub struct Follower {
     next_wait: usize,
     /// Frames left of the wait being held, if one is.
     holding: Option<usize>,
+    /// Arc length the path asks to have reached by now (its speeds, from
+    /// the start, stopping at a pending wait's point).
+    due: f64,
 }
 
 impl Follower {
@@ -37,6 +44,7 @@ impl Follower {
             s: 0.0,
             next_wait: 0,
             holding: None,
+            due: 0.0,
         }
     }
 
@@ -100,8 +108,13 @@ impl Follower {
         let cap = path.arc_at_point(stop);
         let cap_facing = path.segment_tangent(stop.saturating_sub(1));
         let speed = path.speed_at(self.s);
+        self.due = (self.due + path.speed_at(self.due) / FPS).min(cap);
+        // Behind the path's schedule, the targets move ahead by as much
+        // (at most LEAD_M), so a slow motion is asked to catch up.
+        let lead = (self.due - self.s).clamp(0.0, LEAD_M);
+        let base = self.s + lead;
         row(at, |k| {
-            let s = self.s + speed * k as f64 / FPS;
+            let s = base + speed * k as f64 / FPS;
             if s >= cap {
                 (path.points()[stop], cap_facing)
             } else {
@@ -114,6 +127,7 @@ impl Follower {
     fn release(&mut self) {
         if let Some(w) = self.wait_arc() {
             self.s = self.s.max(w);
+            self.due = self.due.max(w);
         }
         self.holding = None;
         self.next_wait += 1;

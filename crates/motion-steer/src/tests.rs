@@ -1,6 +1,7 @@
 //! Tests of paths, the follower and the measures, against hand-computed
 //! values.
 
+use crate::follow::LEAD_M;
 use crate::path::PathError;
 use crate::*;
 
@@ -206,13 +207,36 @@ fn a_wait_holds_the_targets_then_releases_them() {
         assert_eq!(targets(&row), [[0.0, 0.2, 0.0, 1.0]; 3], "call {call}");
         assert!(!f.done());
     }
-    // Released: progress moves on to the stop, the targets ahead of it.
+    // Released: progress moves on to the stop, the targets ahead of it
+    // (and ahead of the schedule's one frame at 1 m/s, due since).
     let row = f.control(&here);
     let t = targets(&row);
-    for (i, d) in [0.2 + 1.0 / 3.0, 0.2 + 2.0 / 3.0, 1.2].iter().enumerate() {
+    let due = 1.0 / 30.0;
+    for (i, d) in [1.0 / 3.0, 2.0 / 3.0, 1.0].iter().enumerate() {
+        let d = 0.2 + due + d;
         assert!((t[i][1] as f64 - d).abs() < 1e-6, "{t:?}");
     }
     assert_eq!(f.progress(), 5.0);
+}
+
+/// A root that stands still behind the path's schedule is led: the targets
+/// move ahead by the distance it is behind, at most `LEAD_M`.
+#[test]
+fn a_root_behind_the_schedule_is_asked_to_catch_up() {
+    let mut f = Follower::new(parse_path("line:10", 1.5).unwrap());
+    let still = at([0.0, 0.0], [0.0, 1.0]);
+    // After 6 calls at 1.5 m/s, 0.3 m is due: the first target is 0.3 + 0.5.
+    for _ in 0..5 {
+        f.control(&still);
+    }
+    let t = targets(&f.control(&still));
+    assert!((t[0][1] - 0.8).abs() < 1e-6, "{t:?}");
+    // Far behind, the lead stops at LEAD_M.
+    for _ in 0..60 {
+        f.control(&still);
+    }
+    let t = targets(&f.control(&still));
+    assert!((t[0][1] as f64 - (LEAD_M + 0.5)).abs() < 1e-6, "{t:?}");
 }
 
 #[test]
