@@ -257,8 +257,8 @@ const GOALS_HEADING: &str = "## Goals met (issue 11)";
 /// The `minute` preset's model, as its section says.
 const MINUTE_ASKED: AskedModel = AskedModel {
     title: "the default model (`--preset minute`)",
-    about: "`cargo xtask train`, the `minute` preset (the `standard` preset's condition with the pace as well, \
-            each motion asked for its context's; fed back to every depth at the sampling temperature; the \
+    about: "`cargo xtask train`, the `minute` preset (the `standard` preset's condition with the pace and the \
+            control as well, each motion asked for its context's pace, the control left free; fed back to every depth at the sampling temperature; the \
             judge over the minute; the best of 3 initialisations)",
 };
 
@@ -607,8 +607,10 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
           the seam easing and restarting, on training contexts and the `test` continuation together; the \
           category and pace conditioning, the guidance scale, the pace gain, the draws and the `minute` preset, \
           on `val` and the minute from training contexts, but with references that pooled `test` windows and \
-          the pace of the whole window, the protocol before 2026-12-05 ([experiments.md](experiments.md)). None \
-          of them has been chosen again under this protocol yet.\n\n";
+          the pace of the whole window, the protocol before 2026-12-05 ([experiments.md](experiments.md)); none \
+          of them has been chosen again under this protocol yet. Under it: the pace trained on each window's first \
+          16 frames, and the control (steering) beside it, on `val` (seed 0, the minute from training contexts); \
+          the follower's lead, on the steering measures from training contexts (seed 0).\n\n";
     s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
     for (name, _) in table {
         let what = match name.as_str() {
