@@ -66,8 +66,8 @@ impl Vrnn {
         match x.dim(D::Minus1)? {
             w if w == f => Ok((x.clone(), None)),
             w if w == f + self.config.control_columns() => Ok((
-                x.narrow(D::Minus1, 0, f)?,
-                Some(x.narrow(D::Minus1, f, w - f)?),
+                x.narrow(D::Minus1, 0, f)?.contiguous()?,
+                Some(x.narrow(D::Minus1, f, w - f)?.contiguous()?),
             )),
             w => candle_core::bail!(
                 "frames of {w} values; this model reads {f}, or {} with its control",
