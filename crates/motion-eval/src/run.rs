@@ -292,23 +292,38 @@ impl Run {
         seed: u64,
     ) -> Result<WindowSet, EvalError> {
         let (train, categories) = self.labelled("train")?;
-        let pool: Vec<usize> = match ask {
-            Asking::One(c, _) => (0..train.n)
-                .filter(|&i| categories.get(i) == Some(&c))
-                .collect(),
-            _ => (0..train.n).collect(),
+        let category = match ask {
+            Asking::One(c, _) => Some(c),
+            _ => None,
         };
+        let picks = self.training_picks(category, n, seed)?;
+        self.continue_asked(ask, train, categories, &picks, frames, context, seed)
+    }
+
+    /// `n` training windows drawn from `seed` ([`generate::picks`]) among
+    /// those of `category` (all where None), or an error where there are
+    /// none.
+    pub fn training_picks(
+        &self,
+        category: Option<Category>,
+        n: usize,
+        seed: u64,
+    ) -> Result<Vec<usize>, EvalError> {
+        let (train, categories) = self.labelled("train")?;
+        let pool: Vec<usize> = (0..train.n)
+            .filter(|&i| category.is_none_or(|c| categories.get(i) == Some(&c)))
+            .collect();
         if pool.is_empty() {
+            let what = category.map_or("any category".into(), |c| c.to_string());
             return Err(EvalError::Invalid(format!(
-                "{}: no training windows of the category asked for to start from",
+                "{}: no training windows of {what} to start from",
                 self.data.dir.display()
             )));
         }
-        let picks: Vec<usize> = generate::picks(seed, n, pool.len())
+        Ok(generate::picks(seed, n, pool.len())
             .into_iter()
             .map(|i| pool[i])
-            .collect();
-        self.continue_asked(ask, train, categories, &picks, frames, context, seed)
+            .collect())
     }
 
     /// One motion of `frames` frames per window of `windows` in `picks`

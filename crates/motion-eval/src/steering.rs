@@ -106,24 +106,12 @@ impl Run {
         context: usize,
         seed: u64,
     ) -> Result<Vec<Steered>, EvalError> {
-        let (train, categories) = self.labelled("train")?;
+        let train = self.split("train")?;
         let (category, ask) = match self.ask {
             Asking::One(c, a) => (c, Some(a)),
             _ => (Category::Walk, None),
         };
-        let pool: Vec<usize> = (0..train.n)
-            .filter(|&i| categories.get(i) == Some(&category))
-            .collect();
-        if pool.is_empty() {
-            return Err(EvalError::Invalid(format!(
-                "{}: no training windows of {category} to start steered motions from",
-                self.data.dir.display()
-            )));
-        }
-        let picks: Vec<usize> = generate::picks(seed, n, pool.len())
-            .into_iter()
-            .map(|i| pool[i])
-            .collect();
+        let picks = self.training_picks(Some(category), n, seed)?;
         let o = Rollout {
             frames,
             context,

@@ -685,6 +685,28 @@ fn randomise(m: &Trained) {
         .unwrap();
 }
 
+/// The losses and every variable's gradient of a batch ([`sharded`]) on
+/// `threads` threads.
+fn sharded_on(
+    threads: usize,
+    m: &Trained,
+    x: &Tensor,
+    eps: &Tensor,
+    fed: Option<&Tensor>,
+    cond: Option<&Tensor>,
+) -> ((f32, f32), Vec<Vec<f32>>) {
+    let vars: Vec<Var> = named_vars(&m.varmap).into_iter().map(|v| v.1).collect();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        let (l, g) = sharded(&m.model, x, eps, fed, cond, Some((1.0, &vars))).unwrap();
+        let g = g.unwrap();
+        (l, vars.iter().map(|v| flat(g.get(v).unwrap())).collect())
+    })
+}
+
 fn flat(t: &Tensor) -> Vec<f32> {
     t.flatten_all().unwrap().to_vec1::<f32>().unwrap()
 }
@@ -804,27 +826,10 @@ fn the_conditioned_fused_path_matches_autograd() {
                 "{name}: a row without gradient"
             );
         }
-        let vars: Vec<Var> = named_vars(&m.varmap).into_iter().map(|v| v.1).collect();
         let (x, eps) = batch(70, 4, 3);
         let rows: Vec<Option<usize>> = (0..70).map(|i| (i % 4 > 0).then_some(i % 4)).collect();
         let c = ask(&m, &rows, 1.0);
-        let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
-                let (l, g) =
-                    sharded(&m.model, &x, &eps, None, Some(&c), Some((1.0, &vars))).unwrap();
-                let g = g.unwrap();
-                (
-                    l,
-                    vars.iter()
-                        .map(|v| flat(g.get(v).unwrap()))
-                        .collect::<Vec<_>>(),
-                )
-            })
-        };
+        let run = |threads| sharded_on(threads, &m, &x, &eps, None, Some(&c));
         assert_eq!(run(1), run(3), "{name}");
     }
 }
@@ -1265,31 +1270,11 @@ fn the_controlled_model_matches_autograd_and_steers_freely_as_it_samples() {
         let g = fused_matches_reference("control", &m, &wide, &eps, fed.as_ref(), Some(&cond));
         assert!(flat(g.get(&control).unwrap()).iter().any(|v| *v != 0.0));
         // The same losses and gradients with 1 and 3 threads.
-        let vars: Vec<Var> = named_vars(&m.varmap).into_iter().map(|v| v.1).collect();
         let (xb, eb) = batch(40, 36, 3);
         let wb = c.with_control(&xb, &[]).unwrap();
         let cb = ask(&m, &vec![Some(1); 40], 1.0);
         let fb = feed_mask(9, 1, 40, 36, 0.5, &Device::Cpu).unwrap();
-        let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
-                let (l, g) = sharded(
-                    &m.model,
-                    &wb,
-                    &eb,
-                    fb.as_ref(),
-                    Some(&cb),
-                    Some((1.0, &vars)),
-                )
-                .unwrap();
-                let g = g.unwrap();
-                let g: Vec<Vec<f32>> = vars.iter().map(|v| flat(g.get(v).unwrap())).collect();
-                (l, g)
-            })
-        };
+        let run = |threads| sharded_on(threads, &m, &wb, &eb, fb.as_ref(), Some(&cb));
         assert_eq!(run(1), run(3), "control: thread count");
         // A free control is no control: the same losses as without it.
         let l = |x: &Tensor| {

@@ -85,6 +85,40 @@ impl Vrnn {
         let none = Tensor::zeros(w.dim(1)?, DType::F32, w.device())?;
         linear(ctl, &w.t()?, &none, Act::None).map(Some)
     }
+
+    /// The condition's rows `base` (`[B or 1, ·]`, one per sequence) plus
+    /// the control's `ctl: [B, T, CONTROL]`, one per frame. Each part
+    /// (posterior, gates, prior, decoder) is its own product: a slice of a
+    /// per-frame tensor would cost candle a zero-filled copy of the whole
+    /// in the backward pass.
+    pub(super) fn frame_bias(&self, base: &Tensor, ctl: &Tensor) -> Result<Bias> {
+        let (Some(w), c) = (&self.control, &self.config) else {
+            candle_core::bail!("frame_bias: a model without the control");
+        };
+        let widths = [2 * c.latent, 4 * c.hidden, 2 * c.latent, c.decoder[0]];
+        let mut at = 0;
+        let mut parts = Vec::with_capacity(4);
+        for n in widths {
+            let none = Tensor::zeros(n, DType::F32, w.device())?;
+            let r = linear(
+                ctl,
+                &w.narrow(1, at, n)?.t()?.contiguous()?,
+                &none,
+                Act::None,
+            )?;
+            parts.push(r.broadcast_add(&base.narrow(1, at, n)?.unsqueeze(1)?)?);
+            at += n;
+        }
+        let [enc, gates, prior, decoder]: [Tensor; 4] = parts
+            .try_into()
+            .map_err(|_| candle_core::Error::Msg("frame_bias: four parts".into()))?;
+        Ok(Bias {
+            pre: Tensor::cat(&[&enc, &gates], 2)?,
+            prior,
+            decoder,
+            parts: Some([enc, gates]),
+        })
+    }
 }
 
 /// What generation asks of the control at each step ([`MotionModel::steer`]):
@@ -108,6 +142,7 @@ impl Vrnn {
             pre: part(0, &base.pre)?,
             prior: part(pre, &base.prior)?,
             decoder: part(pre + prior, &base.decoder)?,
+            parts: None,
         })
     }
 }

@@ -66,6 +66,9 @@ pub(super) struct Bias {
     pub(super) prior: Tensor,
     /// The decoder's first layer, before its ReLU.
     pub(super) decoder: Tensor,
+    /// With rows per frame, `pre`'s two parts as they were made (posterior,
+    /// gates), so the recurrence adds each without slicing `pre`.
+    pub(super) parts: Option<[Tensor; 2]>,
 }
 
 impl Bias {
@@ -75,6 +78,10 @@ impl Bias {
             pre: self.pre.detach(),
             prior: self.prior.detach(),
             decoder: self.decoder.detach(),
+            parts: self
+                .parts
+                .as_ref()
+                .map(|p| p.each_ref().map(Tensor::detach)),
         }
     }
 
@@ -88,6 +95,7 @@ impl Bias {
             pre: self.pre.unsqueeze(1)?,
             prior: self.prior.unsqueeze(1)?,
             decoder: self.decoder.unsqueeze(1)?,
+            parts: None,
         })
     }
 
@@ -106,6 +114,7 @@ impl Bias {
             pre: row(&self.pre)?,
             prior: row(&self.prior)?,
             decoder: row(&self.decoder)?,
+            parts: None,
         })
     }
 }
@@ -261,17 +270,15 @@ impl Vrnn {
             None => table.narrow(0, 0, 1)?,
         };
         // With a control, one row per frame: the sequence's plus the control's.
-        let e = match ctl.map(|k| self.control_rows(k)).transpose()?.flatten() {
-            Some(r) if r.rank() == 3 => r.broadcast_add(&e.unsqueeze(1)?)?,
-            Some(r) => r.broadcast_add(&e)?,
-            None => e,
-        };
+        if let Some(k) = ctl.filter(|_| self.control.is_some()) {
+            return self.frame_bias(&e, k).map(Some);
+        }
         let (pre, prior) = (2 * c.latent + 4 * c.hidden, 2 * c.latent);
-        let d = e.rank() - 1;
         Ok(Some(Bias {
-            pre: e.narrow(d, 0, pre)?,
-            prior: e.narrow(d, pre, prior)?,
-            decoder: e.narrow(d, pre + prior, c.decoder[0])?,
+            pre: e.narrow(1, 0, pre)?,
+            prior: e.narrow(1, pre, prior)?,
+            decoder: e.narrow(1, pre + prior, c.decoder[0])?,
+            parts: None,
         }))
     }
 
@@ -358,16 +365,11 @@ impl Vrnn {
         // Rows per frame (the control) join the products; rows per
         // sequence are the recurrence's to add.
         let (pre, rows) = match bias.filter(|b| b.per_frame()) {
-            Some(b) => {
-                let mut at = 0;
-                let mut out = Vec::with_capacity(pre.len());
-                for p in pre {
-                    let w = p.dim(D::Minus1)?;
-                    out.push((p + b.pre.narrow(D::Minus1, at, w)?)?);
-                    at += w;
-                }
-                (out, None)
-            }
+            Some(b) => match (pre.as_slice(), &b.parts) {
+                ([one], _) => (vec![(one + &b.pre)?], None),
+                ([e, g], Some([be, bg])) => (vec![(e + be)?, (g + bg)?], None),
+                _ => candle_core::bail!("scan: rows per frame without their parts"),
+            },
             None => (pre, bias.map(|b| &b.pre)),
         };
         let pre: Vec<&Tensor> = pre.iter().collect();
