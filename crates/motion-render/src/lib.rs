@@ -7,7 +7,7 @@
 //! - [`figure`]: stick figures (contact sheet, animated PNG) on the
 //!   anti-aliased [`canvas`];
 //! - [`chart`]: line charts and histograms with `plotters`;
-//! - [`top_down`]: asked paths and the roots that followed them, seen from
+//! - [`top_down()`]: asked paths and the roots that followed them, seen from
 //!   above;
 //! - [`feet`]: planted toes pinned in place, the legs bent to reach them;
 //! - [`viewer`]: one self-contained HTML file with a 3-D viewer (three.js).

@@ -181,7 +181,7 @@ impl Path {
         walk + self.waits.iter().map(|w| w.1).sum::<f64>()
     }
 
-    /// The segment holding arc length `s`: i with cum[i] ≤ s < cum[i+1], the
+    /// The segment holding arc length `s`: `i` with `cum[i] ≤ s < cum[i + 1]`, the
     /// last one from the end on, the first one before the start.
     pub fn segment_at(&self, s: f64) -> usize {
         let i = self.cum.partition_point(|&c| c <= s);
