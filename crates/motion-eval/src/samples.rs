@@ -101,6 +101,8 @@ pub struct Written {
     /// A conditioned model not asked for one category: the categories
     /// drawn in `category_sheet.png` ([`category_sheet`]), one row each.
     pub category_sheet: Vec<String>,
+    /// Seconds spent generating the category sheet's motions.
+    pub category_seconds: f64,
     /// With [`RunSpec::pin_feet`]: what pinning the feet did.
     pub pinned: Option<FeetPinned>,
 }
@@ -145,7 +147,10 @@ impl Written {
             let c = self.category_sheet.join(", ");
             line(
                 "category_sheet.png",
-                format!("one row per category asked for, its first {PREVIEW_FRAMES} frames: {c}"),
+                format!(
+                    "one row per category asked for, its first {PREVIEW_FRAMES} frames (generated in {:.1} s): {c}",
+                    self.category_seconds
+                ),
             );
         }
         if let Some(p) = &self.pinned {
@@ -227,12 +232,20 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
         .collect();
     let pinned = m.pin_feet.then(|| pin_generated(&mut motions, 0));
     let seconds = started.elapsed().as_secs_f64();
-    write_motions(out, "samples", &motions)?;
+    // Parquet holds every motion; the JSON the previews the viewer shows.
+    motion_render::io::write_parquet(&out.join("samples.parquet"), &motions)?;
+    let previews: Vec<Motion> = motions.iter().take(PREVIEW_MOTIONS).map(preview).collect();
+    let json = motion_render::io::motions_json(&previews);
+    motion_render::write_file(&out.join("samples.json"), json.as_bytes())?;
     contact_sheet(&out.join("contact_sheet.png"), &motions, o.sheet_columns)?;
     let anim = out.join("anim");
     create_dir(&anim)?;
-    for mo in motions.iter().take(PREVIEW_MOTIONS) {
-        animation(&anim.join(format!("{}.png", mo.id)), &[&preview(mo)])?;
+    {
+        use rayon::prelude::*;
+        let shown = &motions[..motions.len().min(PREVIEW_MOTIONS)];
+        shown
+            .par_iter()
+            .try_for_each(|mo| animation(&anim.join(format!("{}.png", mo.id)), &[&preview(mo)]))?;
     }
     let bvh = out.join("bvh");
     create_dir(&bvh)?;
@@ -285,6 +298,7 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
         motions: &read_back,
     });
     write_viewer(&out.join("viewer.html"), &sets)?;
+    let category_started = std::time::Instant::now();
     let category_sheet = match m.ask {
         crate::run::Asking::Nothing | crate::run::Asking::Own(_)
             if !m.model.model.config().categories.is_empty() =>
@@ -302,6 +316,7 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
     Ok(Written {
         pinned,
         category_sheet,
+        category_seconds: category_started.elapsed().as_secs_f64(),
         reconstructed: pairs.len() / 2,
         epoch: m.meta.epoch,
         seconds,
