@@ -214,6 +214,44 @@ fn preview(m: &Motion) -> Motion {
     }
 }
 
+/// The generated `motions`' files in `out`: every motion in
+/// `samples.parquet` and `bvh/` (with the BVH round trips), the previews
+/// in `samples.json` and `anim/`, the contact sheet; and the first four
+/// motions beside their BVH files read back (what a rigid skeleton makes
+/// of the model's stretching bones).
+fn write_generated(
+    out: &Path,
+    motions: &[Motion],
+    columns: usize,
+) -> Result<(Vec<RoundTrip>, Vec<Motion>), EvalError> {
+    use rayon::prelude::*;
+    motion_render::io::write_parquet(&out.join("samples.parquet"), motions)?;
+    let shown = &motions[..motions.len().min(PREVIEW_MOTIONS)];
+    let previews: Vec<Motion> = shown.iter().map(preview).collect();
+    let json = motion_render::io::motions_json(&previews);
+    motion_render::write_file(&out.join("samples.json"), json.as_bytes())?;
+    contact_sheet(&out.join("contact_sheet.png"), motions, columns)?;
+    let anim = out.join("anim");
+    create_dir(&anim)?;
+    previews
+        .par_iter()
+        .try_for_each(|mo| animation(&anim.join(format!("{}.png", mo.id)), &[mo]))?;
+    let bvh = out.join("bvh");
+    create_dir(&bvh)?;
+    let round_trips = motion_render::bvh::write_all(&bvh, motions)?;
+    let mut read_back = Vec::new();
+    for mo in motions.iter().take(4) {
+        read_back.push(mo.clone());
+        read_back.push(motion_render::bvh::read_motion(
+            &bvh.join(format!("{}.bvh", mo.id)),
+            &format!("{}_bvh", mo.id),
+        )?);
+    }
+    Ok((round_trips, read_back))
+}
+
+/// `cargo xtask sample`: `o.n` motions of `o.frames` frames from the run
+/// of `spec` with their files and previews, the viewer, the category sheet, and
 /// `o.reconstruct` reconstructed windows of `spec.split`, into `out`.
 pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Written, EvalError> {
     if o.n == 0 || o.frames == 0 {
@@ -232,34 +270,10 @@ pub fn write_samples(spec: &RunSpec, o: &SampleOptions, out: &Path) -> Result<Wr
         .collect();
     let pinned = m.pin_feet.then(|| pin_generated(&mut motions, 0));
     let seconds = started.elapsed().as_secs_f64();
-    // Parquet holds every motion; the JSON the previews the viewer shows.
-    motion_render::io::write_parquet(&out.join("samples.parquet"), &motions)?;
-    let previews: Vec<Motion> = motions.iter().take(PREVIEW_MOTIONS).map(preview).collect();
-    let json = motion_render::io::motions_json(&previews);
-    motion_render::write_file(&out.join("samples.json"), json.as_bytes())?;
-    contact_sheet(&out.join("contact_sheet.png"), &motions, o.sheet_columns)?;
     let anim = out.join("anim");
-    create_dir(&anim)?;
-    {
-        use rayon::prelude::*;
-        let shown = &motions[..motions.len().min(PREVIEW_MOTIONS)];
-        shown
-            .par_iter()
-            .try_for_each(|mo| animation(&anim.join(format!("{}.png", mo.id)), &[&preview(mo)]))?;
-    }
     let bvh = out.join("bvh");
-    create_dir(&bvh)?;
-    let mut round_trips = vec![("generated", motion_render::bvh::write_all(&bvh, &motions)?)];
-    // The first generated motions beside their BVH files read back: what a
-    // rigid skeleton makes of the model's stretching bones.
-    let mut read_back = Vec::new();
-    for mo in motions.iter().take(4) {
-        read_back.push(mo.clone());
-        read_back.push(motion_render::bvh::read_motion(
-            &bvh.join(format!("{}.bvh", mo.id)),
-            &format!("{}_bvh", mo.id),
-        )?);
-    }
+    let (generated, read_back) = write_generated(out, &motions, o.sheet_columns)?;
+    let mut round_trips = vec![("generated", generated)];
     let shown = &motions[..motions.len().min(PREVIEW_MOTIONS)];
     let mut sets = vec![MotionSet {
         name: "samples",
