@@ -4,7 +4,8 @@
 # /sys/devices/system/cpu/cpuN/cache, and the block length decides the order
 # of the sum; `motion_vrnn::blocks::kernels::mm` cuts that dimension itself
 # (docs/training.md, "Speed"). This trains the default model (conditioned on
-# the category) and the motion classifier for 2 epochs each, twice: once as
+# the category, the pace and the control) and the motion classifier for 2
+# epochs each, twice: once as
 # the machine is and once with the L1 shown to `gemm` as another CPU's (48 KiB
 # 12-way, or 32 KiB 8-way where the real one is 48 KiB; a copy of the cache
 # folders, bind-mounted inside a private mount namespace), and wants identical
@@ -58,7 +59,7 @@ done
 log="$work/log"
 quiet() { "$@" >"$log" 2>&1 || { cat "$log" >&2; echo "cache-check: $* failed" >&2; exit 1; }; }
 quiet "$xtask" dataset --source "$shared/cmu-asfamc-sample.zip" --out "$work/data"
-train=(train --data "$work/data" --preset quick --epochs 2 --condition category --seed 3)
+train=(train --data "$work/data" --preset quick --epochs 2 --condition category+pace+control --seed 3)
 quiet "$xtask" "${train[@]}" --out "$work/real"
 quiet "$xtask" train-classifier --data "$work/data" --epochs 2 --out "$work/real-classifier"
 # shellcheck disable=SC2016
