@@ -13,22 +13,34 @@ use crate::{Frame2, CONTROL, CONTROL_FRAMES, METRES_PER_UNIT};
 pub fn root_track(root: &[[f64; 3]]) -> Vec<Frame2> {
     let mut f = Frame2::START;
     let mut out = Vec::with_capacity(root.len());
-    for (t, &[vx, vz, th]) in root.iter().enumerate() {
+    for (t, &r) in root.iter().enumerate() {
         if t > 0 {
-            let (ex, ez) = (f.right, f.forward);
-            for k in 0..2 {
-                f.pos[k] += (ex[k] * vx + ez[k] * vz) * METRES_PER_UNIT;
-            }
-            let (s, c) = th.sin_cos();
-            let nx = [c * ex[0] - s * ez[0], c * ex[1] - s * ez[1]];
-            let nz = [s * ex[0] + c * ez[0], s * ex[1] + c * ez[1]];
-            // Renormalise so long motions do not drift from unit axes.
-            f.right = unit(nx);
-            f.forward = unit(nz);
+            f = f.advanced(r);
         }
         out.push(f);
     }
     out
+}
+
+impl Frame2 {
+    /// The root one frame later, moved by that frame's root motion
+    /// `(vel_x, vel_z, ang_vel_y)`: the translation along these axes, then
+    /// the axes turned (renormalised, so long motions keep unit axes).
+    pub fn advanced(&self, [vx, vz, th]: [f64; 3]) -> Frame2 {
+        let (ex, ez) = (self.right, self.forward);
+        let mut pos = self.pos;
+        for k in 0..2 {
+            pos[k] += (ex[k] * vx + ez[k] * vz) * METRES_PER_UNIT;
+        }
+        let (s, c) = th.sin_cos();
+        let nx = [c * ex[0] - s * ez[0], c * ex[1] - s * ez[1]];
+        let nz = [s * ex[0] + c * ez[0], s * ex[1] + c * ez[1]];
+        Frame2 {
+            pos,
+            right: unit(nx),
+            forward: unit(nz),
+        }
+    }
 }
 
 fn unit(v: [f64; 2]) -> [f64; 2] {

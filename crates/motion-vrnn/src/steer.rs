@@ -7,7 +7,7 @@ use crate::model::MotionModel;
 use crate::rng::noise;
 use candle_core::{Device, Tensor};
 use mocap_ingest::features::{ANG_VEL_Y, VEL_X, VEL_Z};
-use motion_steer::{root_track, Follower, Frame2, Path, CONTROL};
+use motion_steer::{Follower, Frame2, Path, CONTROL};
 
 /// One steered motion.
 #[derive(Clone, Debug)]
@@ -24,19 +24,6 @@ pub struct Steered {
 /// the dataset's units.
 fn root_of(frame: &[f32], stats: &Stats) -> [f64; 3] {
     [VEL_X, VEL_Z, ANG_VEL_Y].map(|k| frame[k] as f64 * stats.std[k] + stats.mean[k])
-}
-
-/// The root at `at` moved by one frame's root motion `root`
-/// ([`motion_steer::root_track`]'s step, in `at`'s axes).
-fn advanced(at: &Frame2, root: [f64; 3]) -> Frame2 {
-    let d = root_track(&[[0.0; 3], root])[1];
-    let to = |v: [f64; 2]| [0, 1].map(|i| at.right[i] * v[0] + at.forward[i] * v[1]);
-    let p = to(d.pos);
-    Frame2 {
-        pos: [at.pos[0] + p[0], at.pos[1] + p[1]],
-        right: to(d.right),
-        forward: to(d.forward),
-    }
 }
 
 /// One motion of `o.frames` frames per index in `picks`, each continuing
@@ -90,23 +77,24 @@ pub fn steer_windows(
     for run in 0u64.. {
         let new = PACE_EVERY.min(frames - made.max(1));
         let eps = noise(o.seed ^ 0x57EE_2000, run, k + new, n, config.latent, device)?;
-        let mut at: Vec<Frame2> = out.iter().map(|s| s.track[s.track.len() - 1]).collect();
+        // Each new frame is asked from where the root of the frame before
+        // it is, and that root joins the track; the context is read as it is.
+        let mut tracks: Vec<&mut Vec<Frame2>> = out.iter_mut().map(|s| &mut s.track).collect();
         let mut control = |step: usize, so_far: &[Tensor]| -> candle_core::Result<Option<Tensor>> {
-            // The context is read as it is; each new frame is asked from
-            // where the root of the frame before it is.
             if step < k {
                 return Ok(None);
             }
             if step > k {
                 let last = so_far[step - 1].to_vec2::<f32>()?;
-                for (a, row) in at.iter_mut().zip(&last) {
-                    *a = advanced(a, root_of(row, stats));
+                for (track, row) in tracks.iter_mut().zip(&last) {
+                    let next = track[track.len() - 1].advanced(root_of(row, stats));
+                    track.push(next);
                 }
             }
             let rows: Vec<f32> = followers
                 .iter_mut()
-                .zip(&at)
-                .flat_map(|(fo, a)| fo.control(a))
+                .zip(&tracks)
+                .flat_map(|(fo, track)| fo.control(&track[track.len() - 1]))
                 .collect();
             Tensor::from_vec(rows, (n, CONTROL), device).map(Some)
         };
@@ -114,11 +102,12 @@ pub fn steer_windows(
             .steer(&eps, Some(&context), cond.as_ref(), &mut control)?
             .narrow(1, k - 1, new + 1)?;
         let v = x.flatten_all()?.to_vec1::<f32>()?;
+        // The run's last frame was never asked from: its root ends the track.
         for (m, s) in v.chunks((new + 1) * f).zip(out.iter_mut()) {
             let fresh = if made == 0 { m } else { &m[f..] };
             s.frames.extend_from_slice(fresh);
-            for row in m[f..].chunks(f) {
-                let next = advanced(&s.track[s.track.len() - 1], root_of(row, stats));
+            if new > 0 {
+                let next = s.track[s.track.len() - 1].advanced(root_of(&m[new * f..], stats));
                 s.track.push(next);
             }
         }

@@ -76,25 +76,19 @@ impl Vrnn {
         }
     }
 
-    /// The control's share of the condition's rows: `ctl: [B, T, CONTROL]`
-    /// or one step's `[B, CONTROL]` times the control's weights.
-    pub(super) fn control_rows(&self, ctl: &Tensor) -> Result<Option<Tensor>> {
-        let Some(w) = &self.control else {
-            return Ok(None);
-        };
-        let none = Tensor::zeros(w.dim(1)?, DType::F32, w.device())?;
-        linear(ctl, &w.t()?, &none, Act::None).map(Some)
-    }
-
     /// The condition's rows `base` (`[B or 1, ·]`, one per sequence) plus
-    /// the control's `ctl: [B, T, CONTROL]`, one per frame. Each part
-    /// (posterior, gates, prior, decoder) is its own product: a slice of a
-    /// per-frame tensor would cost candle a zero-filled copy of the whole
-    /// in the backward pass.
+    /// the control's `ctl`: `[B, T, CONTROL]`, one row per frame, or one
+    /// step's `[B, CONTROL]`. Each part (posterior, gates, prior, decoder)
+    /// is its own product: a slice of a per-frame tensor would cost candle
+    /// a zero-filled copy of the whole in the backward pass.
     pub(super) fn frame_bias(&self, base: &Tensor, ctl: &Tensor) -> Result<Bias> {
         let (Some(w), c) = (&self.control, &self.config) else {
-            candle_core::bail!("frame_bias: a model without the control");
+            candle_core::bail!(
+                "this model was trained without the control; train one with the default model (`cargo xtask train`)"
+            );
         };
+        // Over time, each sequence's row is added to every frame.
+        let per_frame = ctl.rank() == 3;
         let widths = [2 * c.latent, 4 * c.hidden, 2 * c.latent, c.decoder[0]];
         let mut at = 0;
         let mut parts = Vec::with_capacity(4);
@@ -106,14 +100,16 @@ impl Vrnn {
                 &none,
                 Act::None,
             )?;
-            parts.push(r.broadcast_add(&base.narrow(1, at, n)?.unsqueeze(1)?)?);
+            let b = base.narrow(1, at, n)?;
+            let b = if per_frame { b.unsqueeze(1)? } else { b };
+            parts.push(r.broadcast_add(&b)?);
             at += n;
         }
         let [enc, gates, prior, decoder]: [Tensor; 4] = parts
             .try_into()
             .map_err(|_| candle_core::Error::Msg("frame_bias: four parts".into()))?;
         Ok(Bias {
-            pre: Tensor::cat(&[&enc, &gates], 2)?,
+            pre: Tensor::cat(&[&enc, &gates], D::Minus1)?,
             prior,
             decoder,
             parts: Some([enc, gates]),
@@ -126,23 +122,3 @@ impl Vrnn {
 /// frames first), the control `[B, CONTROL]` for the frame about to be made
 /// (in the axes of the last frame made), or None to leave it free.
 pub type Control<'a> = dyn FnMut(usize, &[Tensor]) -> Result<Option<Tensor>> + 'a;
-
-impl Vrnn {
-    /// The condition's rows `base` (one per sequence, or None: row 0) plus
-    /// one step's control `ctl: [B, CONTROL]`.
-    pub(super) fn stepped_bias(&self, base: Option<&Bias>, ctl: &Tensor) -> Result<Bias> {
-        let (Some(base), Some(r)) = (base, self.control_rows(ctl)?) else {
-            candle_core::bail!(
-                "this model was trained without the control; train one with the default model (`cargo xtask train`)"
-            );
-        };
-        let (pre, prior) = (base.pre.dim(1)?, base.prior.dim(1)?);
-        let part = |at: usize, v: &Tensor| r.narrow(1, at, v.dim(1)?)?.broadcast_add(v);
-        Ok(Bias {
-            pre: part(0, &base.pre)?,
-            prior: part(pre, &base.prior)?,
-            decoder: part(pre + prior, &base.decoder)?,
-            parts: None,
-        })
-    }
-}

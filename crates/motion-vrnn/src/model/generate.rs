@@ -21,7 +21,8 @@ impl Vrnn {
             .transpose()?
             .map(|s| s.0);
         let start = start.as_ref();
-        let bias = self.bias(cond, start, None)?;
+        let rows = self.rows(cond, start)?;
+        let bias = rows.as_ref().map(|e| self.split(e, None)).transpose()?;
         let free = Steps::new(self, bias.as_ref())?;
         let k = start.map_or(Ok(0), |s| s.dim(1))?;
         // Bone lengths: the start frames' own skeleton, else the training
@@ -43,9 +44,12 @@ impl Vrnn {
         for step in 0..t {
             // The step's control, where one is asked: its rows join the
             // condition's for this step.
-            let asked = match control(step, &frames)? {
-                Some(k) => Some(self.stepped_bias(bias.as_ref(), &k)?),
-                None => None,
+            let asked = match (control(step, &frames)?, &rows) {
+                (Some(k), Some(e)) => Some(self.split(e, Some(&k))?),
+                (Some(_), None) => candle_core::bail!(
+                    "this model was trained without the control; train one with the default model (`cargo xtask train`)"
+                ),
+                (None, _) => None,
             };
             let steered = asked
                 .as_ref()

@@ -243,15 +243,27 @@ impl Vrnn {
 
     /// The condition's bias rows for `cond` ([`Config::condition`]; None: row
     /// 0, "no category"), with the pace of `frames` where the model reads
-    /// one ([`Config::paced`]), or None for an unconditioned model.
+    /// one ([`Config::paced`]), and with the control `ctl` where given
+    /// ([`Vrnn::split`]); None for an unconditioned model.
     pub(super) fn bias(
         &self,
         cond: Option<&Tensor>,
         frames: Option<&Tensor>,
         ctl: Option<&Tensor>,
     ) -> Result<Option<Bias>> {
-        let c = &self.config;
-        let cond = c.paced(cond, frames)?;
+        self.rows(cond, frames)?
+            .map(|e| self.split(&e, ctl))
+            .transpose()
+    }
+
+    /// The condition's rows of [`Vrnn::bias`] as one `[B or 1, 2Z + 4H +
+    /// 2Z + d1]` tensor, before they are cut into [`Bias`].
+    pub(super) fn rows(
+        &self,
+        cond: Option<&Tensor>,
+        frames: Option<&Tensor>,
+    ) -> Result<Option<Tensor>> {
+        let cond = self.config.paced(cond, frames)?;
         let cond = cond.as_ref();
         let Some(table) = &self.cond else {
             if cond.is_some() {
@@ -259,27 +271,34 @@ impl Vrnn {
             }
             return Ok(None);
         };
-        let e = match cond {
+        match cond {
             // The fused product: its backward sums over the rows in
             // blocks that do not depend on the CPU (`blocks::kernels::mm`),
             // where candle's `matmul` leaves that to the cache size.
             Some(w) => {
                 let none = Tensor::zeros(table.dim(1)?, DType::F32, table.device())?;
-                linear(w, &table.t()?, &none, Act::None)?
+                linear(w, &table.t()?, &none, Act::None).map(Some)
             }
-            None => table.narrow(0, 0, 1)?,
-        };
-        // With a control, one row per frame: the sequence's plus the control's.
-        if let Some(k) = ctl.filter(|_| self.control.is_some()) {
-            return self.frame_bias(&e, k).map(Some);
+            None => table.narrow(0, 0, 1).map(Some),
         }
+    }
+
+    /// The rows `e` ([`Vrnn::rows`]) cut into what they are added to; with
+    /// a control `ctl` (`[B, T, CONTROL]`, or one step's `[B, CONTROL]`),
+    /// plus its share ([`Vrnn::frame_bias`]; an error for a model without
+    /// the control).
+    pub(super) fn split(&self, e: &Tensor, ctl: Option<&Tensor>) -> Result<Bias> {
+        if let Some(k) = ctl {
+            return self.frame_bias(e, k);
+        }
+        let c = &self.config;
         let (pre, prior) = (2 * c.latent + 4 * c.hidden, 2 * c.latent);
-        Ok(Some(Bias {
+        Ok(Bias {
             pre: e.narrow(1, 0, pre)?,
             prior: e.narrow(1, pre, prior)?,
             decoder: e.narrow(1, pre + prior, c.decoder[0])?,
             parts: None,
-        }))
+        })
     }
 
     /// The same model with every weight detached from the graph: what runs
