@@ -314,6 +314,11 @@ pub fn write_steered(
     })
 }
 
+/// `a / b`, a steered measure over the real walks' (`b` kept from 0).
+fn ratio(a: f64, b: f64) -> f64 {
+    a / b.max(1e-12)
+}
+
 /// `eval --steer`: the real walks, and each path measured.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SteerReport {
@@ -374,7 +379,6 @@ pub fn evaluate(
 /// the real walks'): the path error, the end in time, a 90° turn, and the
 /// motion's feet, smoothness and bones.
 pub fn goals(p: &PathScore, w: &Walks) -> [(&'static str, bool); 5] {
-    let ratio = |a: f64, b: f64| a / b.max(1e-12);
     let g = &p.stats;
     [
         ("path error ≤ 0.3 m", p.error_m <= 0.3),
@@ -403,10 +407,9 @@ pub fn seeds_markdown(reports: &[(u64, SteerReport)]) -> String {
     let Some((_, first)) = reports.first() else {
         return String::new();
     };
+    // Mean ± std over the seeds, as every other table of the results page.
     let ms = |v: Vec<f64>, p: usize| {
-        let n = v.len().max(1) as f64;
-        let m = v.iter().sum::<f64>() / n;
-        let sd = (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt();
+        let (m, sd) = crate::mean_std(&v);
         format!("{m:.p$} ± {sd:.p$}")
     };
     let mut s = String::from("| path | path error m | reached | time / asked | 90° turn s | corners missed | skating × | contact × | jerk × | bone cv |\n|---|---|---|---|---|---|---|---|---|---|\n");
@@ -417,7 +420,6 @@ pub fn seeds_markdown(reports: &[(u64, SteerReport)]) -> String {
                 .map(|(_, r)| f(&r.paths[k], &r.walks))
                 .collect()
         };
-        let ratio = |a: f64, b: f64| a / b.max(1e-12);
         s.push_str(&format!(
             "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             p.path,
@@ -474,7 +476,6 @@ pub fn markdown(r: &SteerReport) -> String {
         w.skate_in_contact, w.contact_share, w.jerk_m_s3, w.bone_cv
     );
     s.push_str("| path | m/s | asked s | path error m | reached | time / asked | 90° turn s (missed) | skating × | contact × | jerk × | bone cv |\n|---|---|---|---|---|---|---|---|---|---|---|\n");
-    let ratio = |a: f64, b: f64| a / b.max(1e-12);
     for p in &r.paths {
         let g = &p.stats;
         s.push_str(&format!(
