@@ -117,6 +117,20 @@ impl Vrnn {
     }
 }
 
+impl Vrnn {
+    /// One generation step's rows: the condition's `rows` ([`Vrnn::rows`])
+    /// with the control `ctl: [B, CONTROL]` ([`Vrnn::split`]); an error for
+    /// a model without the control.
+    pub(super) fn step_bias(&self, rows: Option<&Tensor>, ctl: &Tensor) -> Result<Bias> {
+        match rows {
+            Some(e) => self.split(e, Some(ctl)),
+            None => candle_core::bail!(
+                "this model was trained without the control; train one with the default model (`cargo xtask train`)"
+            ),
+        }
+    }
+}
+
 /// What generation asks of the control at each step ([`MotionModel::steer`]):
 /// given the step and the frames made so far (`[B, input]` each, the start
 /// frames first), the control `[B, CONTROL]` for the frame about to be made

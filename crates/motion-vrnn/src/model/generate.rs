@@ -44,13 +44,9 @@ impl Vrnn {
         for step in 0..t {
             // The step's control, where one is asked: its rows join the
             // condition's for this step.
-            let asked = match (control(step, &frames)?, &rows) {
-                (Some(k), Some(e)) => Some(self.split(e, Some(&k))?),
-                (Some(_), None) => candle_core::bail!(
-                    "this model was trained without the control; train one with the default model (`cargo xtask train`)"
-                ),
-                (None, _) => None,
-            };
+            let asked = control(step, &frames)?
+                .map(|k| self.step_bias(rows.as_ref(), &k))
+                .transpose()?;
             let steered = asked
                 .as_ref()
                 .map(|a| Steps::new(self, Some(a)))
