@@ -160,12 +160,37 @@ pub fn root_delta(prev: &LocalFrame, cur: &LocalFrame) -> [f64; 3] {
 /// `ang_vel_y` (`R(t) = R(t−1)·R_y(θ)`), then places the joints at their
 /// local coordinates. The floor is `y = 0`. Frame 0's velocities are not used.
 pub fn to_global(frames: &[FeatureVec]) -> Vec<Pose> {
-    let mut ex: Vec3 = [-1.0, 0.0, 0.0];
-    let mut ez: Vec3 = [0.0, 0.0, 1.0];
-    let mut origin: Vec3 = [0.0; 3];
-    let mut out = Vec::with_capacity(frames.len());
-    for (t, f) in frames.iter().enumerate() {
-        if t > 0 {
+    let mut placer = Placer::default();
+    frames.iter().map(|f| placer.place(f)).collect()
+}
+
+/// [`to_global`] one frame at a time: the root's frame between frames.
+#[derive(Clone, Debug)]
+pub struct Placer {
+    ex: Vec3,
+    ez: Vec3,
+    origin: Vec3,
+    started: bool,
+}
+
+impl Default for Placer {
+    /// At the origin facing +z, before the first frame.
+    fn default() -> Self {
+        Placer {
+            ex: [-1.0, 0.0, 0.0],
+            ez: [0.0, 0.0, 1.0],
+            origin: [0.0; 3],
+            started: false,
+        }
+    }
+}
+
+impl Placer {
+    /// The global joint positions of the next frame `f` (its velocities
+    /// move the root unless it is the first).
+    pub fn place(&mut self, f: &FeatureVec) -> Pose {
+        let (ex, ez, origin) = (&mut self.ex, &mut self.ez, &mut self.origin);
+        if self.started {
             let (dx, dz, th) = (f[VEL_X], f[VEL_Z], f[ANG_VEL_Y]);
             for k in 0..3 {
                 origin[k] += ex[k] * dx + ez[k] * dz;
@@ -176,9 +201,10 @@ pub fn to_global(frames: &[FeatureVec]) -> Vec<Pose> {
                 [s * ex[0] + c * ez[0], 0.0, s * ex[2] + c * ez[2]],
             );
             // Renormalise so long sequences do not drift from orthonormal.
-            ex = scale(nx, 1.0 / norm(nx));
-            ez = scale(nz, 1.0 / norm(nz));
+            *ex = scale(nx, 1.0 / norm(nx));
+            *ez = scale(nz, 1.0 / norm(nz));
         }
+        self.started = true;
         let mut pose: Pose = [[0.0; 3]; NUM_JOINTS];
         pose[HIPS] = [origin[0], f[ROOT_Y], origin[2]];
         for (j, p) in pose.iter_mut().enumerate().skip(1) {
@@ -188,9 +214,8 @@ pub fn to_global(frames: &[FeatureVec]) -> Vec<Pose> {
             }
             p[1] += l[1];
         }
-        out.push(pose);
+        pose
     }
-    out
 }
 
 /// Minimum, mean and maximum of each feature over `frames` (NaN when empty).

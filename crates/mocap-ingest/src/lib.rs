@@ -9,16 +9,20 @@
 //! Formats, units and the feature layout are documented in `docs/features.md`.
 
 pub mod asf;
+#[cfg(feature = "io")]
 pub mod atomic;
+#[cfg(feature = "io")]
 pub mod bench;
 pub mod bvh;
 pub mod category;
+#[cfg(feature = "io")]
 pub mod dataset;
 pub mod error;
 pub mod features;
 pub mod fps;
 pub mod math;
 pub mod skeleton;
+#[cfg(feature = "io")]
 pub mod source;
 mod text;
 
@@ -29,7 +33,9 @@ pub use skeleton::{Pose, SkeletonKind, JOINT_NAMES, NUM_JOINTS};
 use asf::{AmcMotion, AsfOptions, AsfSkeleton};
 use bvh::BvhMotion;
 use fps::FrameRateTable;
+#[cfg(feature = "io")]
 use source::{FileRef, Format, Source, SourceError, SourceReader, TakeInput};
+#[cfg(feature = "io")]
 use std::path::{Path, PathBuf};
 
 /// A parsed motion at its native frame rate.
@@ -171,6 +177,7 @@ pub fn clip_from_motion(
     })
 }
 
+#[cfg(feature = "io")]
 /// Read one take of `source` and compute its features.
 pub fn process_take(
     source: &Source,
@@ -186,6 +193,7 @@ pub fn process_take(
     )
 }
 
+#[cfg(feature = "io")]
 /// [`process_take`] with the file reading supplied by the caller (`read`
 /// gets each file the take needs: the motion file, then, for AMC, its ASF);
 /// `display` names files in errors.
@@ -217,6 +225,7 @@ pub fn process_take_with(
     clip_from_motion(&file, &take.take_id, &motion, options)
 }
 
+#[cfg(feature = "io")]
 /// Why one motion file could not be turned into features ([`clip_of_file`]).
 #[derive(Debug, thiserror::Error)]
 pub enum FileError {
@@ -231,6 +240,7 @@ pub enum FileError {
     Ingest(#[from] IngestError),
 }
 
+#[cfg(feature = "io")]
 /// One motion file (a `.bvh`, or an `.amc` with its ASF found as
 /// [`Source::takes`] finds it, else `asf`) read and turned into features the
 /// way `cargo xtask dataset` turns a take; with the collection (its
@@ -260,6 +270,7 @@ pub fn clip_of_file(
     Ok((source, take, clip))
 }
 
+#[cfg(feature = "io")]
 /// What `cargo xtask inspect` prints about one motion file: the take, its
 /// ASF, skeleton, frames before and after resampling, and the range of every
 /// feature ([`clip_of_file`]).

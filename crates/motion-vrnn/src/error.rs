@@ -1,6 +1,6 @@
 //! The error of training and generation (below both, so neither imports the other for it).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// A failure that stops training.
 #[derive(Debug, thiserror::Error)]
@@ -42,7 +42,8 @@ impl From<candle_core::Error> for TrainError {
     }
 }
 
-pub(crate) fn io_err(path: &Path, e: impl std::fmt::Display) -> TrainError {
+#[cfg(feature = "train")]
+pub(crate) fn io_err(path: &std::path::Path, e: impl std::fmt::Display) -> TrainError {
     TrainError::Io {
         path: path.to_path_buf(),
         message: e.to_string(),

@@ -92,9 +92,7 @@ pub const PACE_GAIN: f64 = 0.5;
 /// a run held to its pace costs `1 +` this many samplings.
 pub const PACE_CORRECTIONS: usize = 3;
 
-/// Frames per run of a motion held to its pace ([`PACE_GAIN`]): one
-/// window's length.
-pub const PACE_EVERY: usize = 128;
+pub use crate::model::PACE_EVERY;
 
 /// Draws of noise each run of a held motion ([`PACE_GAIN`]) is chosen from,
 /// unless told otherwise (`--draws`): each draw is held to its pace, and
@@ -111,10 +109,7 @@ pub fn held_gain(config: &crate::Config, gain: f64, asked: bool) -> Option<f64> 
     (config.parts.pace && asked && gain > 0.0).then_some(gain)
 }
 
-/// The guidance scale generation asks a category at unless told otherwise
-/// (`--guidance`, [`crate::model::Config::condition`]). Training, its
-/// validation loss and the judge read categories at 1.
-pub const GUIDANCE: f64 = 1.4;
+pub use crate::model::GUIDANCE;
 
 /// A category asked of a conditioned model.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -24,17 +24,25 @@
 //!   reparameterisation noise).
 //! - [`error`]: [`error::TrainError`], shared by training and generation.
 
+#[cfg(feature = "train")]
 pub mod bench;
 pub mod blocks;
+#[cfg(feature = "train")]
 pub mod classifier;
+#[cfg(feature = "train")]
 pub mod data;
 pub mod error;
+#[cfg(feature = "train")]
 pub mod generate;
 pub mod model;
+#[cfg(feature = "train")]
 pub mod optim;
+#[cfg(feature = "train")]
 pub mod options;
 pub mod rng;
+#[cfg(feature = "train")]
 pub mod steer;
+#[cfg(feature = "train")]
 pub mod train;
 
 pub use model::{Config, MotionModel, Vrnn};

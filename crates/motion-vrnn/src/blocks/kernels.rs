@@ -1,5 +1,9 @@
 //! Shared CPU kernels: strided matrix products and vectorisable activations.
 
+// The x86-64 kernels are compiled out elsewhere (WebAssembly), leaving
+// their arguments and helpers unread there.
+#![cfg_attr(not(target_arch = "x86_64"), allow(unused, dead_code))]
+
 /// Lower bound on every standard deviation (guards `log σ` and `1/σ²`):
 /// every σ is a sigmoid clamped to `[SIGMA_MIN, 1]`.
 pub const SIGMA_MIN: f64 = 1e-4;

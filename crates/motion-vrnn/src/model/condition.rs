@@ -11,6 +11,17 @@ pub const ROOT_FEATURES: std::ops::Range<usize> = VEL_X..ANG_VEL_Y + 1;
 /// generated motion continues (`generate::CONTEXT` is this).
 pub const PACE_FRAMES: usize = 16;
 
+/// Frames per run of a long motion: one window's length. A long motion is
+/// made in runs, each a fresh recurrence after the last
+/// [`PACE_FRAMES`] frames of the run before, its pace read from them (the
+/// sampler, steering, live play).
+pub const PACE_EVERY: usize = 128;
+
+/// The guidance scale generation asks a category at unless told otherwise
+/// (`--guidance`, [`Config::condition`]). Training, its
+/// validation loss and the judge read categories at 1.
+pub const GUIDANCE: f64 = 1.4;
+
 /// The normalised features whose means make the pace ([`Parts::pace`]):
 /// `root_y`, `vel_x`, `vel_z`, `ang_vel_y`.
 pub const PACE_FEATURES: [usize; 4] = [ROOT_Y, VEL_X, VEL_Z, ANG_VEL_Y];

@@ -56,10 +56,11 @@ mod losses;
 mod step;
 mod vrnn;
 
-pub use condition::{pace, PACE_FEATURES, PACE_FRAMES, ROOT_FEATURES};
+pub use condition::{pace, GUIDANCE, PACE_EVERY, PACE_FEATURES, PACE_FRAMES, ROOT_FEATURES};
 pub use config::{Body, Config, Parts};
 pub use control::{Control, CONTROL_WEIGHT};
 pub use fed::{fed_speed_loss, FED_SPEED_FLOOR};
+pub use generate::Generator;
 pub use vrnn::Vrnn;
 
 use condition::frame_speed;
