@@ -136,7 +136,7 @@ impl Follower {
 
 /// A control row from the target (point, facing) at each offset, in `at`'s
 /// axes, flagged as given.
-fn row(at: &Frame2, target: impl Fn(usize) -> ([f64; 2], [f64; 2])) -> [f32; CONTROL] {
+pub(crate) fn row(at: &Frame2, target: impl Fn(usize) -> ([f64; 2], [f64; 2])) -> [f32; CONTROL] {
     let mut out = [0f32; CONTROL];
     for (i, &k) in CONTROL_FRAMES.iter().enumerate() {
         let (p, f) = target(k);

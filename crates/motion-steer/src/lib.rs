@@ -10,17 +10,21 @@
 //! - [`path`]: asked paths (built-ins and CSV files) and their geometry;
 //! - [`follow`]: a [`Follower`] turning a path into control rows, frame by
 //!   frame, during generation;
+//! - [`stick`]: a [`Stick`] turning keys held (turn, run, stop) into control
+//!   rows, frame by frame, for live play;
 //! - [`measure`]: how well a generated root followed what was asked.
 
 pub mod control;
 pub mod follow;
 pub mod measure;
 pub mod path;
+pub mod stick;
 
 pub use control::{control_of_motion, root_track};
 pub use follow::Follower;
 pub use measure::{path_error, reach_seconds, turn_seconds};
 pub use path::{parse_path, Path, PathError};
+pub use stick::{Keys, Stick};
 
 /// Metres per dataset length unit (CMU units; `docs/features.md`).
 pub const METRES_PER_UNIT: f64 = 0.0564;

@@ -300,3 +300,58 @@ fn local_coordinates_of_a_turned_frame() {
     assert_eq!(f.local_point([3.0, 1.0]), [0.0, 2.0]);
     assert_eq!(f.local_point([1.0, 0.0]), [1.0, 0.0]);
 }
+
+#[test]
+fn the_stick_turns_walks_runs_and_stops_as_the_keys_say() {
+    let at = Frame2::START;
+    let mut s = Stick::new(&at, 0.6, 1.5);
+    // Walking straight ahead: targets 10/20/30 frames on at 0.6 m/s.
+    let r = s.control(&at, Keys::default());
+    for (i, k) in [10.0, 20.0, 30.0].iter().enumerate() {
+        assert!(near(r[4 * i] as f64, 0.0));
+        assert!((r[4 * i + 1] as f64 - 0.6 * k / 30.0).abs() < 1e-6);
+        assert_eq!([r[4 * i + 2], r[4 * i + 3]], [0.0, 1.0]);
+    }
+    assert_eq!(r[CONTROL - 1], 1.0);
+    // Right held for a second: the heading has turned 90° to +x.
+    let right = Keys {
+        turn: 1.0,
+        ..Keys::default()
+    };
+    for _ in 0..30 {
+        s.control(&at, right);
+    }
+    assert!(near2(s.heading(), [1.0, 0.0]));
+    // The root has not moved for 31 frames: it is led the most, LEAD_M.
+    let r = s.control(&at, Keys::default());
+    assert!((r[8] as f64 - LEAD_M - 0.6).abs() < 1e-6 && (r[9] as f64).abs() < 1e-6);
+    assert!((heading_deg([0.0, 1.0], s.heading()) - 90.0).abs() < 1e-6);
+    // Run while held; stop stands (targets on the root) until go.
+    s.control(
+        &at,
+        Keys {
+            run: true,
+            ..Keys::default()
+        },
+    );
+    assert_eq!(s.speed(), 1.5);
+    let r = s.control(
+        &at,
+        Keys {
+            stop: true,
+            ..Keys::default()
+        },
+    );
+    assert_eq!(s.speed(), 0.0);
+    assert!(r[..2].iter().chain(&r[4..6]).all(|v| v.abs() < 1e-9));
+    s.control(&at, Keys::default());
+    assert_eq!(s.speed(), 0.0, "stopped until go");
+    s.control(
+        &at,
+        Keys {
+            go: true,
+            ..Keys::default()
+        },
+    );
+    assert_eq!(s.speed(), 0.6);
+}
