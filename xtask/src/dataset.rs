@@ -242,20 +242,6 @@ fn bench_runs(
 /// Copies of the takes per subject for the scaled benchmark.
 const SCALE: usize = 10;
 
-fn print_bench_row(name: &str, threads: usize, r: &BenchRun) {
-    println!(
-        "{:<28} {:>7} {:>9.1} {:>10} {:>8.3} {:>8.1} {:>12.0} {:>6.0} MiB",
-        name,
-        threads,
-        r.input_bytes as f64 / 1e6,
-        r.native_frames,
-        r.seconds,
-        r.input_bytes as f64 / 1e6 / r.seconds,
-        r.native_frames as f64 / r.seconds,
-        r.rss_kib as f64 / 1024.0
-    );
-}
-
 /// `cargo xtask bench-dataset`: each source alone with 1 thread and all
 /// cores; with the default sources also the ASF/AMC sample at 10× (peak RSS
 /// must not grow with the collection).
@@ -275,7 +261,7 @@ pub fn bench(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
         for src in &sources {
             for threads in [1, cores] {
                 let r = bench_runs(&exe, src, &tmp.join("out"), threads, &[], repeat)?;
-                print_bench_row(&file_name(src), threads, &r);
+                println!("{}", r.row(&file_name(src), threads));
                 if threads == cores && file_name(src).contains("asfamc") {
                     rss_1x = Some(r.rss_kib);
                 }
@@ -295,7 +281,7 @@ pub fn bench(sources: Vec<PathBuf>, repeat: usize) -> Result<()> {
             &["--fps-table", &fps],
             repeat,
         )?;
-        print_bench_row(&format!("asfamc sample ×{SCALE}"), cores, &r);
+        println!("{}", r.row(&format!("asfamc sample ×{SCALE}"), cores));
         if let Some(one) = rss_1x {
             println!(
                 "peak RSS at ×{SCALE} / ×1 (ASF/AMC sample, {cores} threads): {:.0} / {:.0} MiB",

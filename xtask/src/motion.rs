@@ -7,7 +7,7 @@ use motion_eval::horizon::HorizonOptions;
 use motion_eval::report::{markdown, report, Contexts};
 use motion_eval::run::RunSpec;
 use motion_eval::samples::{write_samples, SampleOptions};
-use motion_render::bvh::{round_trip_table, RoundTrip};
+use motion_render::bvh::round_trip_table;
 use motion_vrnn::generate;
 use motion_vrnn::train::layout;
 use std::path::{Path, PathBuf};
@@ -268,30 +268,15 @@ pub fn export(a: ExportArgs) -> Result<()> {
     if files.is_empty() {
         bail!("nothing to export: pass --parquet FILE (repeatable) or --run RUN");
     }
-    let mut failed = 0;
-    let mut sets = Vec::new();
-    for f in &files {
-        match motion_render::bvh::export_parquet(f, a.out.as_deref()) {
-            Ok((out, t)) => {
-                println!(
-                    "{} -> {}/ ({} motions)",
-                    f.display(),
-                    out.display(),
-                    t.len()
-                );
-                sets.push((crate::file_name(f), t));
-            }
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                failed += 1;
-            }
-        }
-    }
-    let named: Vec<(&str, Vec<RoundTrip>)> =
-        sets.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
-    print!("{}", round_trip_table(&named));
-    if failed > 0 {
-        bail!("{failed} of {} files could not be exported", files.len());
+    let (printed, errors) = motion_render::bvh::export_files(&files, a.out.as_deref());
+    errors.iter().for_each(|e| eprintln!("error: {e}"));
+    print!("{printed}");
+    if !errors.is_empty() {
+        bail!(
+            "{} of {} files could not be exported",
+            errors.len(),
+            files.len()
+        );
     }
     Ok(())
 }
@@ -359,9 +344,6 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
     };
     let done = continue_clip(&run, &clip.features, &o)
         .with_context(|| format!("continuing {}", a.input.display()))?;
-    let stem = a.out.with_extension("");
-    let dir = a.out.parent().unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     println!(
         "{}: {} frames at 30 fps; the model reads the last {}",
         a.input.display(),
@@ -372,20 +354,10 @@ pub fn continue_clip(a: ContinueArgs) -> Result<()> {
         "seam (mean joint step, CMU units): the clip moves {:.3} a frame (largest {:.3})",
         done[0].seam.clip_mean, done[0].seam.clip_max
     );
-    for c in &done {
-        let path = match done.len() {
-            1 => a.out.clone(),
-            _ => PathBuf::from(format!("{}_{}.bvh", stem.display(), c.seed - o.seed)),
-        };
-        motion_render::bvh::write_bvh(&path, &c.motion)?;
-        let check = motion_render::bvh::read_motion(&path, "check")?;
-        println!(
-            "{} <- seed {}: {} + {} frames ({:.1} s); seam step {:.3} ({:.2}x the clip's mean, clip's last {:.3}, next second {:.3}); read back: {} frames",
-            path.display(), c.seed, c.clip_frames, c.motion.poses.len() - c.clip_frames,
-            c.motion.poses.len() as f64 / 30.0, c.seam.jump, c.seam.jump / c.seam.clip_mean.max(1e-9), c.seam.clip_last, c.seam.next_second, check.poses.len()
-        );
-        c.pinned.iter().for_each(|p| println!("  {p}"));
-    }
+    print!(
+        "{}",
+        motion_eval::continuation::write_continued(&done, o.seed, &a.out)?
+    );
     Ok(())
 }
 

@@ -227,6 +227,22 @@ pub struct BenchRun {
 }
 
 impl BenchRun {
+    /// A row of `bench-dataset`'s table: source, threads, MB, frames,
+    /// seconds, MB/s, frames/s, peak RSS.
+    pub fn row(&self, name: &str, threads: usize) -> String {
+        format!(
+            "{:<28} {:>7} {:>9.1} {:>10} {:>8.3} {:>8.1} {:>12.0} {:>6.0} MiB",
+            name,
+            threads,
+            self.input_bytes as f64 / 1e6,
+            self.native_frames,
+            self.seconds,
+            self.input_bytes as f64 / 1e6 / self.seconds,
+            self.native_frames as f64 / self.seconds,
+            self.rss_kib as f64 / 1024.0
+        )
+    }
+
     /// The one-line form: `BENCH seconds=… native_frames=… input_bytes=… peak_rss_kib=…`.
     pub fn line(&self) -> String {
         format!(

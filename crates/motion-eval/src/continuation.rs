@@ -219,6 +219,35 @@ pub fn continue_clip(
         .collect()
 }
 
+/// Each continuation of `done` (from [`continue_clip`] with options of
+/// `seed`) written as a BVH at `out` (several: `OUT_k.bvh`, k from 0) and
+/// read back: a line per file, what `continue` prints.
+pub fn write_continued(
+    done: &[Continued],
+    seed: u64,
+    out: &std::path::Path,
+) -> Result<String, EvalError> {
+    let stem = out.with_extension("");
+    let dir = out.parent().unwrap_or(std::path::Path::new("."));
+    crate::create_dir(dir)?;
+    let mut printed = String::new();
+    for c in done {
+        let path = match done.len() {
+            1 => out.to_path_buf(),
+            _ => std::path::PathBuf::from(format!("{}_{}.bvh", stem.display(), c.seed - seed)),
+        };
+        motion_render::bvh::write_bvh(&path, &c.motion)?;
+        let check = motion_render::bvh::read_motion(&path, "check")?;
+        printed += &format!(
+            "{} <- seed {}: {} + {} frames ({:.1} s); seam step {:.3} ({:.2}x the clip's mean, clip's last {:.3}, next second {:.3}); read back: {} frames\n",
+            path.display(), c.seed, c.clip_frames, c.motion.poses.len() - c.clip_frames,
+            c.motion.poses.len() as f64 / 30.0, c.seam.jump, c.seam.jump / c.seam.clip_mean.max(1e-9), c.seam.clip_last, c.seam.next_second, check.poses.len()
+        );
+        c.pinned.iter().for_each(|p| printed += &format!("  {p}\n"));
+    }
+    Ok(printed)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -203,6 +203,33 @@ pub struct RoundTrip {
     pub residual_max: f64,
 }
 
+/// Every motions Parquet file of `files` exported ([`export_parquet`]):
+/// a line per file exported and the round-trip table (what `export`
+/// prints), and an error message per file that failed.
+pub fn export_files(files: &[std::path::PathBuf], out: Option<&Path>) -> (String, Vec<String>) {
+    let (mut printed, mut errors, mut sets) = (String::new(), Vec::new(), Vec::new());
+    for f in files {
+        match export_parquet(f, out) {
+            Ok((dir, t)) => {
+                printed += &format!(
+                    "{} -> {}/ ({} motions)\n",
+                    f.display(),
+                    dir.display(),
+                    t.len()
+                );
+                let name = f
+                    .file_name()
+                    .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+                sets.push((name, t));
+            }
+            Err(e) => errors.push(e.to_string()),
+        }
+    }
+    let named: Vec<(&str, Vec<RoundTrip>)> =
+        sets.iter().map(|(n, t)| (n.as_str(), t.clone())).collect();
+    (printed + &round_trip_table(&named), errors)
+}
+
 /// The BVH round-trip table `sample` and `export` print: per set, the
 /// worst and mean joint distance of the files read back, and the part
 /// bone-length variation explains.
