@@ -48,6 +48,8 @@ enum Command {
     /// Steer a trained run's model along a path (a CSV of waypoints or a
     /// built-in shape): BVH, Parquet, and the path from above.
     Steer(steer::SteerArgs),
+    /// A web page where the model walks where the keys say, live (WebAssembly, no server).
+    Play(steer::PlayArgs),
     /// Measure a trained run against real windows: ELBO, diversity,
     /// smoothness, bone lengths, foot skating, Fréchet distance.
     Eval(motion::EvalArgs),
@@ -123,6 +125,7 @@ fn main() -> Result<()> {
         Command::Screenshot(args) => motion::screenshot(args),
         Command::Eval(args) => motion::eval(args),
         Command::Steer(args) => steer::steer(args),
+        Command::Play(args) => steer::play(args),
         Command::Audit(args) => audit::run(args),
         Command::Compare(args) => compare::run(args),
         Command::BenchTrain(args) => train::bench(args),

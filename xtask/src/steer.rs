@@ -3,7 +3,7 @@
 use crate::motion::RunArgs;
 use anyhow::{Context, Result};
 use clap::Args;
-use motion_eval::run::Run;
+use motion_eval::run::{Run, RunSpec};
 use motion_eval::steering::{asked_path, evaluate, markdown, write_steered};
 use std::path::{Path as FsPath, PathBuf};
 
@@ -79,4 +79,39 @@ pub fn eval(a: &RunArgs, motions: usize, out: &FsPath) -> Result<(String, String
         serde_json::to_string_pretty(&report)? + "\n",
         markdown(&report),
     ))
+}
+
+/// `cargo xtask play` options.
+#[derive(Args, Debug)]
+pub struct PlayArgs {
+    /// Run directory written by `cargo xtask train` (its `best` checkpoint).
+    #[arg(long, default_value = "runs/vrnn")]
+    run: PathBuf,
+    /// Dataset directory (default: the run's): the start contexts and the walking and running speeds come from its training windows.
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Seed of the start contexts and of the page's noise.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// The page to write.
+    #[arg(long, default_value = "play.html")]
+    out: PathBuf,
+}
+
+/// `cargo xtask play`.
+pub fn play(a: PlayArgs) -> Result<()> {
+    let spec = RunSpec::best(a.run.clone(), a.data.clone());
+    let run = Run::load(&spec, &["train"])
+        .with_context(|| format!("loading the run {}", a.run.display()))?;
+    println!("building the player for WebAssembly into target/wasm (minutes the first time)");
+    let root = crate::workspace_root();
+    let p = run.write_play(&a.run.join(&spec.checkpoint), a.seed, &a.out, &root)?;
+    println!(
+        "{}: {:.1} MB (the model {:.0} kB); open it in a browser: arrows or WASD steer, Shift runs, Space stops, digits pick {}",
+        a.out.display(),
+        p.bytes as f64 / 1e6,
+        p.model_bytes as f64 / 1e3,
+        p.categories.join(", ")
+    );
+    Ok(())
 }

@@ -27,6 +27,7 @@ pub mod chart;
 pub mod compare;
 pub mod continuation;
 pub mod horizon;
+pub mod play;
 pub mod recognition;
 pub mod report;
 pub mod run;
@@ -69,6 +70,9 @@ pub enum EvalError {
     /// A path to steer along could not be read or asks too much.
     #[error(transparent)]
     Path(#[from] motion_steer::PathError),
+    /// The live player's bundle or module.
+    #[error(transparent)]
+    Play(#[from] motion_play::PlayError),
     /// A tensor operation failed (its message in this one's, not also a
     /// source, so an error chain says it once).
     #[error("tensor error: {0}")]

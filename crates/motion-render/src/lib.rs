@@ -21,6 +21,7 @@ pub mod chart;
 pub mod feet;
 pub mod figure;
 pub mod io;
+pub mod play;
 pub mod solve;
 pub mod top_down;
 pub mod viewer;

@@ -32,7 +32,7 @@ pub struct MotionSet<'a> {
 }
 
 /// Text safe inside a `<script>` element.
-fn script_safe(s: &str) -> String {
+pub(crate) fn script_safe(s: &str) -> String {
     s.replace("</", "<\\/")
 }
 
