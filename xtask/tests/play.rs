@@ -46,23 +46,12 @@ impl Cdp {
         }
         let (child_in, child_out) = (a[0], b[1]);
         let mut cmd = std::process::Command::new(chromium);
-        cmd.args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-background-timer-throttling",
-            "--disable-renderer-backgrounding",
-            "--remote-debugging-pipe",
-            "--window-size=900,700",
-        ])
-        .arg(format!("--user-data-dir={}", profile.path().display()))
-        .arg("about:blank")
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null());
+        cmd.args(motion_render::viewer::CHROMIUM_FLAGS)
+            .args(["--remote-debugging-pipe", "--window-size=900,700"])
+            .arg(format!("--user-data-dir={}", profile.path().display()))
+            .arg("about:blank")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
         // SAFETY: only async-signal-safe calls (fcntl, dup2) in the child.
         unsafe {
             cmd.pre_exec(move || {

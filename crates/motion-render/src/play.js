@@ -38,33 +38,18 @@
     renderer = new THREE.WebGLRenderer({ antialias: true });
   } catch (e) { fail('This page needs WebGL: ' + e.message); return; }
   $('view').appendChild(renderer.domElement);
-  const scene = new THREE.Scene();
-  scene.background = new THREE.Color(0xf7f7f7);
-  scene.add(new THREE.HemisphereLight(0xffffff, 0x8a8a8a, 2.2));
-  const sun = new THREE.DirectionalLight(0xffffff, 1.6);
-  sun.position.set(40, 80, 60);
-  scene.add(sun);
+  const scene = MotionFigure.scene();
   // A floor of 10-unit (0.56 m) squares that follows the figure.
   const grid = new THREE.GridHelper(400, 40, 0x909090, 0xc4c4c4);
   scene.add(grid);
   const camera = new THREE.PerspectiveCamera(40, 1, 0.5, 5000);
-  const LEFT = new Set([1, 2, 3, 4, 13, 14, 15]), RIGHT = new Set([5, 6, 7, 8, 16, 17, 18]);
-  const mat = (c) => new THREE.MeshStandardMaterial({ color: c, roughness: 0.6 });
-  const boneGeo = new THREE.CylinderGeometry(0.45, 0.45, 1, 10);
-  const bones = meta.parents.map((p, j) => {
-    if (p < 0) return null;
-    const m = new THREE.Mesh(boneGeo, mat(LEFT.has(j) ? 0x285ac8 : RIGHT.has(j) ? 0xc83228 : 0x3c3c3c));
-    scene.add(m);
-    return m;
-  });
-  const head = new THREE.Mesh(new THREE.SphereGeometry(1.4, 16, 12), mat(0x3c3c3c));
-  scene.add(head);
+  const figure = MotionFigure.make(meta.parents, scene, false);
   const trace = [], traceGeo = new THREE.BufferGeometry();
   scene.add(new THREE.Line(traceGeo, new THREE.LineBasicMaterial({ color: 0x555555 })));
   // The asked heading and speed: an orange segment from the root, a ball at its end.
   const askedGeo = new THREE.BufferGeometry();
   scene.add(new THREE.Line(askedGeo, new THREE.LineBasicMaterial({ color: 0xe08a1e })));
-  const askedEnd = new THREE.Mesh(new THREE.SphereGeometry(1.2, 12, 8), mat(0xe08a1e));
+  const askedEnd = new THREE.Mesh(new THREE.SphereGeometry(1.2, 12, 8), MotionFigure.mat(0xe08a1e));
   scene.add(askedEnd);
 
   const held = new Set();
@@ -84,7 +69,6 @@
   const category = () => (play.state ? play.state.category : 0);
 
   // One frame of the model, with the keys held now.
-  const a = new THREE.Vector3(), b = new THREE.Vector3(), dir = new THREE.Vector3(), UP = new THREE.Vector3(0, 1, 0);
   let f = null;
   function step() {
     const turn = (any('ArrowRight', 'KeyD') ? 1 : 0) - (any('ArrowLeft', 'KeyA') ? 1 : 0);
@@ -108,17 +92,7 @@
   }
   function draw() {
     if (!f) return;
-    const p = (j) => [f[3 * j], f[3 * j + 1], f[3 * j + 2]];
-    meta.parents.forEach((q, j) => {
-      if (q < 0) return;
-      a.fromArray(p(q)); b.fromArray(p(j));
-      dir.subVectors(b, a);
-      const len = dir.length();
-      bones[j].position.addVectors(a, b).multiplyScalar(0.5);
-      bones[j].scale.set(1, Math.max(len, 1e-3), 1);
-      if (len > 1e-9) bones[j].quaternion.setFromUnitVectors(UP, dir.divideScalar(len));
-    });
-    head.position.fromArray(p(12));
+    MotionFigure.pose(figure, Array.from({ length: J }, (_, j) => [f[3 * j], f[3 * j + 1], f[3 * j + 2]]));
     traceGeo.setAttribute('position', new THREE.Float32BufferAttribute(trace, 3));
     const s = play.state;
     const reach = 8 + 12 * s.speed;

@@ -2,7 +2,7 @@
 //! model, compiled to WebAssembly (crate `motion-play`), makes a motion
 //! frame by frame as the keys say, drawn with three.js (`docs/play.md`).
 
-use crate::viewer::{script_safe, THREE_BUNDLE, THREE_LICENSE};
+use crate::viewer::{script_safe, FIGURE_JS, THREE_BUNDLE, THREE_LICENSE};
 use crate::RenderError;
 use mocap_ingest::skeleton::JOINT_PARENTS;
 use std::path::Path;
@@ -57,6 +57,7 @@ body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
 <script id="play-wasm" type="application/octet-stream">{wasm}</script>
 <script id="play-bundle" type="application/octet-stream">{bundle}</script>
 <script>{three}</script>
+<script>{figure}</script>
 <script>{js}</script>
 </body></html>
 "#,
@@ -64,6 +65,7 @@ body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
         wasm = base64(wasm),
         bundle = base64(bundle),
         three = script_safe(THREE_BUNDLE),
+        figure = script_safe(FIGURE_JS),
         js = script_safe(PLAY_JS),
     )
 }

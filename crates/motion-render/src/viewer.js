@@ -34,24 +34,13 @@
   }
   renderer.setPixelRatio(window.devicePixelRatio || 1);
   view.appendChild(renderer.domElement);
-  const scene = new THREE.Scene();
-  scene.background = new THREE.Color(0xf7f7f7);
-  scene.add(new THREE.HemisphereLight(0xffffff, 0x8a8a8a, 2.2));
-  const sun = new THREE.DirectionalLight(0xffffff, 1.6);
-  sun.position.set(40, 80, 60);
-  scene.add(sun);
+  const scene = MotionFigure.scene();
   const camera = new THREE.PerspectiveCamera(40, 1, 0.5, 5000);
   const controls = new THREE.OrbitControls(camera, renderer.domElement);
   controls.enableDamping = false;
   controls.addEventListener('change', () => render());
 
-  const LEFT = new Set([1, 2, 3, 4, 13, 14, 15]), RIGHT = new Set([5, 6, 7, 8, 16, 17, 18]);
-  const mat = (c) => new THREE.MeshStandardMaterial({ color: c, roughness: 0.6 });
-  const colours = { left: mat(0x285ac8), right: mat(0xc83228), centre: mat(0x3c3c3c), other: mat(0xe08a1e) };
   const traceMat = [new THREE.LineBasicMaterial({ color: 0x555555 }), new THREE.LineBasicMaterial({ color: 0xe08a1e })];
-  const boneGeo = new THREE.CylinderGeometry(0.45, 0.45, 1, 10);
-  const headGeo = new THREE.SphereGeometry(1.4, 16, 12);
-  const UP = new THREE.Vector3(0, 1, 0);
   let world = null, figures = [], frame = 0, playing = true, last = 0, acc = 0;
 
   function current() { return sets[+sel.value]; }
@@ -79,22 +68,14 @@
       off.x -= m.frames[0][0][0]; off.z -= m.frames[0][0][2];
       const g = new THREE.Group();
       g.position.copy(off);
-      const bones = d.parents.map((p, j) => {
-        if (p < 0) return null;
-        const c = member > 0 ? colours.other : LEFT.has(j) ? colours.left : RIGHT.has(j) ? colours.right : colours.centre;
-        const b = new THREE.Mesh(boneGeo, c);
-        g.add(b);
-        return b;
-      });
-      const head = new THREE.Mesh(headGeo, member > 0 ? colours.other : colours.centre);
-      g.add(head);
+      const fig = MotionFigure.make(d.parents, g, member > 0);
       const pts = [];
       m.frames.forEach((f) => pts.push(f[0][0], 0.05, f[0][2]));
       const tg = new THREE.BufferGeometry();
       tg.setAttribute('position', new THREE.Float32BufferAttribute(pts, 3));
       g.add(new THREE.Line(tg, traceMat[member > 0 ? 1 : 0]));
       world.add(g);
-      figures.push({ m, bones, head, parents: d.parents });
+      figures.push({ m, fig });
     });
     const w = cols * spacing, h = Math.ceil(cells / cols) * spacing;
     const grid = new THREE.GridHelper(Math.ceil((Math.max(w, h) + spacing) / 10) * 10, Math.ceil((Math.max(w, h) + spacing) / 10), 0xb0b0b0, 0xd8d8d8);
@@ -111,21 +92,8 @@
       : 'Left limbs blue, right limbs red; grey line: the root\u2019s path on the floor.';
   }
 
-  const a = new THREE.Vector3(), b = new THREE.Vector3(), dir = new THREE.Vector3();
   function pose() {
-    figures.forEach((fig) => {
-      const f = fig.m.frames[Math.min(frame, fig.m.frames.length - 1)];
-      fig.parents.forEach((p, j) => {
-        if (p < 0) return;
-        a.fromArray(f[p]); b.fromArray(f[j]);
-        dir.subVectors(b, a);
-        const len = dir.length(), bone = fig.bones[j];
-        bone.position.addVectors(a, b).multiplyScalar(0.5);
-        bone.scale.set(1, Math.max(len, 1e-3), 1);
-        if (len > 1e-9) bone.quaternion.setFromUnitVectors(UP, dir.divideScalar(len));
-      });
-      fig.head.position.fromArray(f[12]);
-    });
+    figures.forEach(({ m, fig }) => MotionFigure.pose(fig, m.frames[Math.min(frame, m.frames.length - 1)]));
     slider.value = frame;
     const fps = current().data.fps;
     label.textContent = 'frame ' + frame + ' / ' + (frames() - 1) + ' (' + (frame / fps).toFixed(2) + ' s)';

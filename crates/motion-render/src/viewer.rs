@@ -19,6 +19,22 @@ pub const THREE_BUNDLE: &str = include_str!("../viewer/vendor/three.bundle.js");
 pub const THREE_LICENSE: &str = include_str!("../viewer/vendor/three.LICENSE");
 /// The viewer's own script.
 const VIEWER_JS: &str = include_str!("viewer.js");
+/// The lit scene and the stick figures, shared with the player's page.
+pub(crate) const FIGURE_JS: &str = include_str!("figure.js");
+
+/// How the checks start headless Chromium (software WebGL, nothing fetched
+/// in the background, timers not throttled).
+pub const CHROMIUM_FLAGS: [&str; 9] = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-background-timer-throttling",
+    "--disable-renderer-backgrounding",
+];
 
 /// A named set of motions; `group` consecutive motions form a group that can
 /// be overlaid (2 for real/reconstruction pairs, 1 otherwise).
@@ -75,11 +91,13 @@ body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
 <p><span id="legend"></span> Drag to orbit, right-drag to pan, wheel to zoom. Grid: 10 units (0.56 m). Written by <code>cargo xtask sample</code>.</p>
 <script id="motion-data" type="application/json">{data}</script>
 <script>{three}</script>
+<script>{figure}</script>
 <script>{js}</script>
 </body></html>
 "#,
         data = script_safe(&format!("[{}]", data.join(","))),
         three = script_safe(THREE_BUNDLE),
+        figure = script_safe(FIGURE_JS),
         js = script_safe(VIEWER_JS),
     )
 }
@@ -120,16 +138,8 @@ fn run_chromium(
         RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
     ));
     let mut child = std::process::Command::new(chromium)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader",
-            "--no-first-run",
-            "--enable-logging=stderr",
-            "--virtual-time-budget=3000",
-        ])
+        .args(CHROMIUM_FLAGS)
+        .args(["--enable-logging=stderr", "--virtual-time-budget=3000"])
         .arg(format!("--user-data-dir={}", profile.display()))
         .args(args)
         .arg(url)
