@@ -101,4 +101,15 @@ mod tests {
             assert_eq!(base64(raw.as_bytes()), enc);
         }
     }
+
+    #[test]
+    fn the_page_is_one_file_with_no_network() {
+        let html = play_html(b"\0asm</script>", b"MPLAY1", 3);
+        // meta, module, bundle, three.js, the figures, the player.
+        assert_eq!(html.matches("</script>").count(), 6);
+        assert!(html.contains(&base64(b"\0asm</script>")) && html.contains("\"seed\":3"));
+        for needle in ["<script src", "<link", "import(", "fetch("] {
+            assert!(!html.contains(needle), "play.html has {needle}");
+        }
+    }
 }

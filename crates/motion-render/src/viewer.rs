@@ -276,7 +276,8 @@ mod tests {
             group: 1,
             motions: std::slice::from_ref(&m),
         }]);
-        assert_eq!(html.matches("</script>").count(), 3);
+        // The data, three.js, the figures, the viewer.
+        assert_eq!(html.matches("</script>").count(), 4);
         assert!(html.contains("Copyright © 2010-"));
         for needle in ["<script src", "<link", "import(", "fetch("] {
             assert!(!html.contains(needle), "viewer.html has {needle}");
