@@ -261,9 +261,9 @@ impl Overrides {
         self.apply_choice(cfg);
     }
 
-    /// The training schedule's values of `self` into `cfg` (budget, epochs, batch,
-    /// learning rate, seed, warm-up, clipping, stopping, judge, inits, late
-    /// epochs).
+    /// The training schedule's values of `self` into `cfg` (budget, epochs,
+    /// batch, learning rate, seed, warm-up, clipping, stopping, judge,
+    /// inits, late epochs).
     fn apply_training(&self, cfg: &mut TrainConfig) {
         if let Some(v) = self.budget {
             cfg.budget = (v > 0).then_some(v);
@@ -509,9 +509,10 @@ mod tests {
         let minute = Preset::Minute.for_model(motion);
         // On the samples' 776 windows, the schedule as it is: 600 epochs.
         assert_eq!(minute.for_windows(776), minute);
-        assert_eq!(minute.for_windows(777).epochs, 599); // 465,600 / 777 = 599.2
-                                                         // On 13,625 windows (the samples ×17): 465,600 / 13,625 = 34.17,
-                                                         // 34 epochs; each count × 34/600, rounded, at least 1.
+        // 465,600 / 777 = 599.2: 599 epochs.
+        assert_eq!(minute.for_windows(777).epochs, 599);
+        // On 13,625 windows (the samples ×17): 465,600 / 13,625 = 34.17,
+        // 34 epochs; each count × 34/600, rounded, at least 1.
         let big = minute.for_windows(13_625);
         assert_eq!((big.epochs, big.budget), (34, Some(465_600)));
         assert_eq!(big.rollout_last, Some(17)); // 300 × 34/600 = 17
