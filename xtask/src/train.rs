@@ -24,9 +24,12 @@ pub struct TrainArgs {
     /// The settings the options below replace: `minute` (a minute of motion), `standard`, `quick` or `paper` (docs/training.md).
     #[arg(long, default_value = "minute")]
     pub preset: Preset,
-    /// Epochs (minute: 600 with `motion`, else 400; standard: 400; quick: 30; paper: 2000).
+    /// Epochs, in place of the budget (minute: the budget's; standard: 400; quick: 30; paper: 2000).
     #[arg(long)]
     pub epochs: Option<usize>,
+    /// Training windows seen: the epochs and every count of epochs below scaled to the dataset, the preset's for the shared samples' 776 windows (minute: its epochs × 776, 465,600 with `motion`; the others: none).
+    #[arg(long, value_name = "WINDOWS")]
+    pub budget: Option<u64>,
     /// Windows per step (paper: 1600; the others: 64).
     #[arg(long)]
     pub batch: Option<usize>,
@@ -139,7 +142,7 @@ impl TrainArgs {
             };
         }
         same_names! {
-            temperature extractor decoder epochs batch lr lr_final seed kl_warmup clip early_stopping
+            temperature extractor decoder epochs budget batch lr lr_final seed kl_warmup clip early_stopping
             select judge_every judge_stretches condition inits rollout_last late_root_weight
         }
     }
@@ -157,19 +160,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
         )
     })?;
     let n = |s: &str| data.splits.get(s).map_or(0, |w| w.n);
+    let cfg = cfg.for_windows(n("train"));
     if !a.quiet {
-        eprintln!(
-            "training the {} model{} on {} train / {} val windows from {} on {}; batch {}, {} epochs, lr {}",
-            a.model,
-            cfg.extras(),
-            n("train"),
-            n("val"),
-            a.data.display(),
-            motion_vrnn::model::device_name(&device),
-            cfg.batch,
-            cfg.epochs,
-            cfg.adam.lr
-        );
+        let windows = (n("train"), n("val"));
+        eprintln!("{}", cfg.announce(&a.model, windows, &a.data, &device));
         if device.is_cuda() {
             eprintln!("note: these small recurrent models train several times faster on the CPU (docs/training.md, \"GPU\"); `CUDA_VISIBLE_DEVICES= cargo xtask train …` runs there");
         }

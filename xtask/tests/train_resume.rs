@@ -21,14 +21,19 @@ fn train_cmd(ds: &Path, out: &Path) -> Command {
 }
 
 fn train_for(epochs: &str, ds: &Path, out: &Path) -> Command {
+    let mut c = train_budget(ds, out);
+    c.args(["--epochs", epochs]);
+    c
+}
+
+/// `train` as the other commands, the epochs left to the preset's budget.
+fn train_budget(ds: &Path, out: &Path) -> Command {
     let mut c = xtask();
     c.args([
         "train",
         "--quiet",
         "--batch",
         "8",
-        "--epochs",
-        epochs,
         "--early-stopping",
         "0",
         "--seed",
@@ -72,7 +77,41 @@ fn metrics(run: &Path) -> Vec<serde_json::Value> {
 #[test]
 fn sigkill_and_resume_reaches_the_uninterrupted_result() {
     integration_tests::require_samples!();
-    kill_and_resume(&[]);
+    kill_and_resume(&[], &train_cmd);
+}
+
+/// The default's budget set to 15 times the small dataset's training
+/// windows: 15 epochs, each count of epochs × 15/600 (the last 8 through
+/// the rollout: 300 × 15/600 = 7.5, rounded; the judge every epoch from
+/// epoch 7, where the feed ramp ends; 1 epoch per initialisation; the KL
+/// warmed up in 1). The uninterrupted run on 1 thread and the run killed
+/// before the late epochs and resumed across them on 3 end with the same
+/// bytes, and the checkpoint holds the scaled schedule.
+#[test]
+fn a_budget_scales_the_schedule_and_resumes_exactly_across_the_late_epochs() {
+    integration_tests::require_samples!();
+    let budget = |ds: &Path, out: &Path| {
+        let manifest = std::fs::read_to_string(ds.join("manifest.json")).unwrap();
+        let m: serde_json::Value = serde_json::from_str(&manifest).unwrap();
+        let windows = m["counts"]["windows_per_split"]["train"].as_u64().unwrap();
+        assert!(windows > 0);
+        let threads = if out.ends_with("a") { "1" } else { "3" };
+        let mut c = train_budget(ds, out);
+        c.env("RAYON_NUM_THREADS", threads);
+        c.args(["--budget", &(15 * windows).to_string()]);
+        c
+    };
+    let (tmp, _, m) = kill_and_resume(&[], &budget);
+    assert!(m[..6].iter().all(|e| e["generated"].is_null()));
+    assert!(m[6..].iter().all(|e| !e["generated"].is_null()));
+    let meta = last_meta(&tmp.path().join("a")).unwrap();
+    let c = &meta["config"];
+    assert_eq!(c["epochs"], 15, "{c}");
+    assert_eq!(c["rollout_last"], 8, "{c}");
+    assert_eq!(c["kl_warmup_epochs"], 1, "{c}");
+    assert_eq!(c["select"]["generation"]["every"], 1, "{c}");
+    assert_eq!(c["inits"]["epochs"], 1, "{c}");
+    assert!(c["budget"].as_u64().is_some_and(|b| b % 15 == 0), "{c}");
 }
 
 /// `--rollout-last 8` trains the first 7 epochs as the plain run
@@ -84,7 +123,7 @@ fn sigkill_and_resume_reaches_the_uninterrupted_result() {
 fn the_late_rollout_starts_on_time_and_resumes_exactly() {
     integration_tests::require_samples!();
     // One initialisation: the probes of several would run late epochs too.
-    let (tmp, ds, late) = kill_and_resume(&["--rollout-last", "8", "--inits", "1"]);
+    let (tmp, ds, late) = kill_and_resume(&["--rollout-last", "8", "--inits", "1"], &train_cmd);
     let plain = tmp.path().join("plain");
     let mut c = train_cmd(&ds, &plain);
     let off = ["--inits", "1", "--rollout-last", "0"];
@@ -107,10 +146,13 @@ fn the_late_rollout_starts_on_time_and_resumes_exactly() {
     assert_eq!(meta["config"]["rollout_last"], 8, "{meta}");
 }
 
-/// Train with `extra` options once through (`a`) and once killed after
-/// epoch 3 and resumed (`b`): the same metrics and bytes. Returns the
-/// directory, the dataset and the metrics.
-fn kill_and_resume(extra: &[&str]) -> (tempfile::TempDir, PathBuf, Vec<serde_json::Value>) {
+/// Train `cmd` (15 epochs) with `extra` options once through (`a`) and
+/// once killed after epoch 3 and resumed (`b`): the same metrics and bytes.
+/// Returns the directory, the dataset and the metrics.
+fn kill_and_resume(
+    extra: &[&str],
+    train_cmd: &dyn Fn(&Path, &Path) -> Command,
+) -> (tempfile::TempDir, PathBuf, Vec<serde_json::Value>) {
     let tmp = tempfile::tempdir().unwrap();
     let ds = dataset(tmp.path());
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));

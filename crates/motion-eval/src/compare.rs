@@ -366,7 +366,7 @@ fn train_one(
         .apply(&mut cfg);
     }
     if let Some(e) = epochs {
-        cfg.epochs = e;
+        (cfg.epochs, cfg.budget) = (e, None);
     }
     let device = motion_vrnn::model::default_device();
     let outcome = train(data, &cfg, dir, false, &device, &Quiet)?;

@@ -20,7 +20,10 @@ pub enum Preset {
     /// decoder ([`MINUTE_EXTRACTOR`], [`MINUTE_DECODER`]),
     /// [`MINUTE_EPOCHS`] epochs, every one trained (no early stopping), the
     /// last [`MINUTE_LATE`] through the rollout with the root's motion
-    /// weighed [`MINUTE_LATE_ROOT_WEIGHT`].
+    /// weighed [`MINUTE_LATE_ROOT_WEIGHT`]; all of it a budget of the
+    /// windows those epochs see on [`SAMPLES_TRAIN_WINDOWS`]
+    /// ([`TrainConfig::budget`]), so on another dataset every count of
+    /// epochs is scaled to it.
     Minute,
 }
 
@@ -39,6 +42,12 @@ pub const MINUTE_EPOCHS: usize = 600;
 /// (`--rollout-last`; [`TrainConfig::rollout_last`]): the second half of
 /// its [`MINUTE_EPOCHS`], where the learning rate anneals.
 pub const MINUTE_LATE: usize = 300;
+
+/// The training windows of the shared CMU samples' dataset (`cargo xtask
+/// dataset --source` the BVH and the ASF/AMC sample): the size the
+/// `minute` preset's epochs are counted at; its budget is its epochs times
+/// these ([`Preset::for_model`]).
+pub const SAMPLES_TRAIN_WINDOWS: u64 = 776;
 
 /// The root's weight in the `minute` preset's late epochs
 /// (`--late-root-weight`; [`TrainConfig::late_root_weight`]).
@@ -83,7 +92,8 @@ impl Preset {
     /// rollout (and with them the longer run and the end of early
     /// stopping) only for a model that feeds its frames back to a skeleton,
     /// the one kind they can train ([`TrainConfig::late_model`]); any other
-    /// keeps `standard`'s.
+    /// keeps `standard`'s. `minute` sets its epochs as a budget: the
+    /// windows they see on [`SAMPLES_TRAIN_WINDOWS`].
     pub fn for_model(self, model: crate::model::Config) -> TrainConfig {
         let mut cfg = self.config();
         cfg.model = model;
@@ -98,6 +108,9 @@ impl Preset {
             ) = (None, None, None, None);
         }
         o.apply(&mut cfg);
+        if self == Preset::Minute {
+            cfg.budget = Some(cfg.epochs as u64 * SAMPLES_TRAIN_WINDOWS);
+        }
         cfg
     }
 }
@@ -181,8 +194,11 @@ pub struct Overrides {
     pub extractor: Option<[usize; 2]>,
     /// Decoder layer sizes (the paper's 32, 48).
     pub decoder: Option<[usize; 2]>,
-    /// Epochs.
+    /// Epochs (in place of a budget).
     pub epochs: Option<usize>,
+    /// Training windows seen ([`TrainConfig::budget`]; 0: none, the
+    /// epochs as they are); `epochs` wins.
+    pub budget: Option<u64>,
     /// Windows per step.
     pub batch: Option<usize>,
     /// Adam learning rate.
@@ -245,12 +261,16 @@ impl Overrides {
         self.apply_choice(cfg);
     }
 
-    /// The training schedule's values of `self` into `cfg` (epochs, batch,
-    /// learning rate, seed, warm-up, clipping, stopping, judge, inits, late
-    /// epochs).
+    /// The training schedule's values of `self` into `cfg` (budget, epochs,
+    /// batch, learning rate, seed, warm-up, clipping, stopping, judge,
+    /// inits, late epochs).
     fn apply_training(&self, cfg: &mut TrainConfig) {
+        if let Some(v) = self.budget {
+            cfg.budget = (v > 0).then_some(v);
+        }
         if let Some(v) = self.epochs {
             cfg.epochs = v;
+            cfg.budget = None;
         }
         if let Some(v) = self.batch {
             cfg.batch = v;
@@ -479,7 +499,81 @@ mod tests {
             let stops = standard.early_stopping;
             assert_eq!(cfg.early_stopping, late.map_or(stops, |_| None), "{name}");
             assert_eq!(cfg.epochs, late.map_or(standard.epochs, |_| 600), "{name}");
+            assert_eq!(cfg.budget, Some(cfg.epochs as u64 * 776), "{name}");
         }
+    }
+
+    #[test]
+    fn the_minute_budget_scales_every_count_of_epochs_to_the_dataset() {
+        let motion = crate::model::Config::named("motion").unwrap_or_default();
+        let minute = Preset::Minute.for_model(motion);
+        // On the samples' 776 windows, the schedule as it is: 600 epochs.
+        assert_eq!(minute.for_windows(776), minute);
+        // 465,600 / 777 = 599.2: 599 epochs.
+        assert_eq!(minute.for_windows(777).epochs, 599);
+        // On 13,625 windows (the samples ×17): 465,600 / 13,625 = 34.17,
+        // 34 epochs; each count × 34/600, rounded, at least 1.
+        let big = minute.for_windows(13_625);
+        assert_eq!((big.epochs, big.budget), (34, Some(465_600)));
+        assert_eq!(big.rollout_last, Some(17)); // 300 × 34/600 = 17
+        assert_eq!(big.kl_warmup_epochs, 1); // 20 × 34/600 = 1.13
+        assert_eq!(big.select, Select::Generation { every: 1 }); // 10 → 0.57
+        assert_eq!(big.inits.map(|i| i.epochs), Some(1)); // 20 → 1.13
+        assert_eq!(big.early_stopping, None);
+        // The late epochs are the last 17 (epochs 18–34, 1-based), where
+        // the learning rate anneals: 1e-3 through epoch 17, a half cosine
+        // over the 17 after it, 1e-4 at the last; the feed ramp ends at 17,
+        // and the judge starts there.
+        assert_eq!(big.late_model(16), None);
+        assert!(big.late_model(17).is_some_and(|c| c.parts.rollout_gradient));
+        assert_eq!((big.lr(0), big.lr(16)), (1e-3, 1e-3));
+        // Epoch 26 (1-based): 1e-3 × (0.1 + 0.9 × (1 + cos(π·9/17)) / 2).
+        assert!(
+            (big.lr(25) - 5.084_792_382e-4).abs() < 1e-12,
+            "{}",
+            big.lr(25)
+        );
+        assert!((big.lr(33) - 1e-4).abs() < 1e-15);
+        assert_eq!(big.feed_share(0), big.model.parts.self_feed * (1.0 / 17.0));
+        assert_eq!(big.feed_share(16), big.model.parts.self_feed);
+        assert_eq!(big.schedule_end(), 17);
+        // Scaled once for good; everything else as it was.
+        assert_eq!(big.for_windows(13_625), big);
+        let back = TrainConfig {
+            epochs: 600,
+            kl_warmup_epochs: 20,
+            select: Select::Generation { every: 10 },
+            inits: minute.inits,
+            rollout_last: Some(300),
+            ..big.clone()
+        };
+        assert_eq!(back, minute);
+        // A dataset of 100 windows: 4,656 epochs, the late 2,328, the
+        // warm-up 155 (20 × 7.76 = 155.2), the judge every 78 (77.6).
+        let small = minute.for_windows(100);
+        assert_eq!((small.epochs, small.rollout_last), (4656, Some(2328)));
+        assert_eq!(small.kl_warmup_epochs, 155);
+        assert_eq!(small.select, Select::Generation { every: 78 });
+        // `standard`'s early stopping scales too; --epochs wins over a budget.
+        let mut standard = TrainConfig::standard();
+        Overrides {
+            budget: Some(400 * 776),
+            ..Default::default()
+        }
+        .apply(&mut standard);
+        let half = standard.for_windows(1552);
+        assert_eq!((half.epochs, half.early_stopping), (200, Some(30)));
+        assert_eq!(half.kl_warmup_epochs, 10);
+        let mut fixed = minute.clone();
+        Overrides {
+            budget: Some(1000),
+            epochs: Some(40),
+            ..Default::default()
+        }
+        .apply(&mut fixed);
+        assert_eq!(fixed.budget, None);
+        assert_eq!(fixed.for_windows(13_625).epochs, 40);
+        assert_eq!(fixed.for_windows(13_625).rollout_last, Some(300));
     }
 
     #[test]
@@ -509,7 +603,15 @@ mod tests {
             ..Default::default()
         }
         .apply(&mut flags);
-        assert_eq!(minute, flags);
+        // The epochs as a budget: what 600 see on the samples' 776 windows.
+        assert_eq!(minute.budget, Some(600 * 776));
+        assert_eq!(
+            minute,
+            TrainConfig {
+                budget: Some(465_600),
+                ..flags
+            }
+        );
         // Every epoch trained, the second half through the rollout with the
         // root weighed 8; the epochs before and the run's model as they were.
         assert_eq!((minute.epochs, minute.early_stopping), (600, None));

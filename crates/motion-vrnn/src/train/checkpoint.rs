@@ -203,9 +203,11 @@ pub(super) fn restore(
             unknown.join(", ")
         )));
     }
-    // Only the number of epochs may change on resume.
+    // Only the number of epochs (or the budget that gave them) may change
+    // on resume.
     let same_but_epochs = TrainConfig {
         epochs: meta.config.epochs,
+        budget: meta.config.budget,
         ..config.clone()
     };
     if meta.config != same_but_epochs {

@@ -53,6 +53,12 @@ pub struct TrainConfig {
     /// the model's own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub late_root_weight: Option<f64>,
+    /// Training windows seen that set the schedule (`--budget`): the
+    /// epochs and every schedule counted in epochs are scaled to the
+    /// dataset before the first epoch ([`TrainConfig::for_windows`]; a
+    /// checkpoint holds them scaled); None: the epochs as given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub budget: Option<u64>,
 }
 
 /// Weight of the fed speed loss in the epochs of
@@ -157,6 +163,7 @@ impl TrainConfig {
             inits: None,
             rollout_last: None,
             late_root_weight: None,
+            budget: None,
         }
     }
 
@@ -194,6 +201,66 @@ impl TrainConfig {
             early_stopping: Some(10),
             ..Self::paper()
         }
+    }
+
+    /// `self` for a dataset of `windows` training windows. With a
+    /// [`TrainConfig::budget`] of `B` windows seen, `E = B / windows`
+    /// epochs (rounded to the nearest, at least 1), and every schedule
+    /// counted in epochs multiplied by `E / epochs` (rounded to the
+    /// nearest, at least 1): the KL warm-up, the early-stopping patience,
+    /// the judge's period, the epochs of each initialisation and the late
+    /// epochs; the learning rate's annealing and the feed ramp follow the
+    /// epochs (their halves). Where `B / windows` is `epochs`, `self`
+    /// unchanged; without a budget too. The result scales to itself again.
+    pub fn for_windows(&self, windows: usize) -> TrainConfig {
+        let mut c = self.clone();
+        let Some(budget) = self.budget.filter(|_| windows > 0) else {
+            return c;
+        };
+        let n = windows as u64;
+        let epochs = ((budget + n / 2) / n).max(1) as usize;
+        let was = self.epochs.max(1);
+        let scale = |m: usize| ((m * epochs + was / 2) / was).max(1);
+        c.epochs = epochs;
+        if c.kl_warmup_epochs > 0 {
+            c.kl_warmup_epochs = scale(c.kl_warmup_epochs);
+        }
+        c.early_stopping = c.early_stopping.map(scale);
+        if let Select::Generation { every } = c.select {
+            c.select = Select::Generation {
+                every: scale(every),
+            };
+        }
+        if let Some(i) = &mut c.inits {
+            i.epochs = scale(i.epochs);
+        }
+        c.rollout_last = c.rollout_last.map(scale);
+        c
+    }
+
+    /// The line `train` opens with: the model named `model` and what the
+    /// run adds ([`TrainConfig::extras`]), the `(train, val)` windows of
+    /// `data` and the device, the batch, the epochs (with the budget they
+    /// come from) and the learning rate.
+    pub fn announce(
+        &self,
+        model: &str,
+        (train, val): (usize, usize),
+        data: &Path,
+        device: &Device,
+    ) -> String {
+        let budget = self.budget.map_or(String::new(), |b| {
+            format!(" (a budget of {b} windows seen; --epochs N: N epochs)")
+        });
+        format!(
+            "training the {model} model{} on {train} train / {val} val windows from {} on {}; batch {}, {} epochs{budget}, lr {}",
+            self.extras(),
+            data.display(),
+            crate::model::device_name(device),
+            self.batch,
+            self.epochs,
+            self.adam.lr
+        )
     }
 
     /// KL weight in `epoch` (0-based).

@@ -427,7 +427,8 @@ fn checked<'a>(data: &'a Dataset, config: &TrainConfig) -> Result<&'a Windows, T
     Ok(train)
 }
 
-/// `config` with its model fitted to the training windows `train`
+/// `config` scaled to the training windows `train`
+/// ([`TrainConfig::for_windows`]), its model fitted to them
 /// ([`Config::fit_to`]) and given the training set's categories when
 /// conditioned; an error where the late epochs cannot train it.
 fn fitted(
@@ -436,7 +437,7 @@ fn fitted(
     train: &Windows,
     device: &Device,
 ) -> Result<TrainConfig, TrainError> {
-    let mut config = config.clone();
+    let mut config = config.for_windows(train.n);
     let stats = &data.stats;
     config.model.fit_to(&stats.mean, &stats.std, &train.data);
     let train_categories = data.categories_of("train");
