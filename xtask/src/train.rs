@@ -226,6 +226,7 @@ pub fn bench(a: BenchArgs) -> Result<()> {
         batches: &a.batch,
         steps: a.steps,
         reference: a.autograd,
+        blocks: a.blocks,
         pytorch: py,
         rounds: a.rounds,
     };
@@ -247,6 +248,9 @@ pub struct BenchArgs {
     /// Also time each model through candle ops and autograd (the blocks' reference path).
     #[arg(long)]
     autograd: bool,
+    /// Also print where each step's time goes, block by block.
+    #[arg(long)]
+    blocks: bool,
     /// A Python with PyTorch: also time the paper's model in PyTorch eager (`xtask/py/pytorch_vrnn_step.py`) and print every model's speed-up against it.
     #[arg(long, value_name = "PYTHON")]
     pytorch: Option<PathBuf>,

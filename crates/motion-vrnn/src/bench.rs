@@ -2,6 +2,7 @@
 //! random windows, for `cargo xtask bench-train`; and PyTorch eager running
 //! the paper's model on the same machine (`xtask/py/pytorch_vrnn_step.py`).
 
+use crate::blocks::timing::{self, BlockTime};
 use crate::model::Config;
 use crate::optim::Adam;
 use crate::train::{feed_mask, init_model, named_vars, noise, sharded, TrainError};
@@ -127,16 +128,19 @@ pub struct StepTiming {
     pub min: f64,
     /// Median time to sample 36 motions, seconds.
     pub sample: f64,
+    /// With [`Bench::blocks`], each fused block's seconds over the timed
+    /// steps ([`timing`]), and those steps' wall-clock seconds.
+    pub blocks: Option<(Vec<BlockTime>, f64)>,
 }
 
 /// Time `steps` training steps (after 2 warm-up steps) of model `name` at
 /// each batch size, on the fused path and, with `reference`, through candle
-/// ops and autograd too.
+/// ops and autograd too; with `blocks`, each fused block's share as well.
 pub fn time_steps(
     name: &str,
     batches: &[usize],
     steps: usize,
-    reference: bool,
+    (reference, blocks): (bool, bool),
     device: &Device,
 ) -> Result<Vec<StepTiming>, TrainError> {
     let t = FRAMES;
@@ -167,7 +171,11 @@ pub fn time_steps(
             let x = model.with_control(&x, &[])?;
             let cond = bench_condition(&model, b, device)?;
             let mut times = Vec::new();
+            let timed = blocks && path == "fused";
             for step in 0..steps.max(1) + 2 {
+                if timed && step == 2 {
+                    timing::start();
+                }
                 let eps = noise(0, step as u64, t, b, model.latent, device)?;
                 let feed = feed_mask(0, step as u64, b, t, model.parts.self_feed, device)?;
                 let start = std::time::Instant::now();
@@ -186,6 +194,7 @@ pub fn time_steps(
                     times.push(start.elapsed().as_secs_f64());
                 }
             }
+            let blocks = timed.then(|| (timing::stop(), times.iter().sum()));
             times.sort_by(f64::total_cmp);
             let mut sample = Vec::new();
             for k in 0..5 {
@@ -207,6 +216,7 @@ pub fn time_steps(
                 median: times[times.len() / 2],
                 min: times[0],
                 sample: sample[2],
+                blocks,
             });
         }
     }
@@ -281,6 +291,8 @@ pub struct Bench<'a> {
     pub steps: usize,
     /// Also through candle ops (autograd).
     pub reference: bool,
+    /// Also each fused block's share of a step ([`timing`]).
+    pub blocks: bool,
     /// `(python, script)`: PyTorch eager on the paper's model as well.
     pub pytorch: Option<(&'a Path, &'a Path)>,
     /// Times the whole bench runs, PyTorch included, one after the other
@@ -409,7 +421,8 @@ pub fn report(b: &Bench, device: &Device, out: &mut dyn FnMut(&str)) -> Result<(
         ));
         let mut fused = Vec::new();
         for name in models {
-            for r in time_steps(name, b.batches, steps, b.reference, device)? {
+            let flags = (b.reference, b.blocks);
+            for r in time_steps(name, b.batches, steps, flags, device)? {
                 out(&format!(
                     "{:>9} {:>9} {:>6} {:>10.4} {:>10.4} {:>16.0} {:>12.4}",
                     r.model,
@@ -420,6 +433,9 @@ pub fn report(b: &Bench, device: &Device, out: &mut dyn FnMut(&str)) -> Result<(
                     (r.batch * FRAMES) as f64 / r.median,
                     r.sample
                 ));
+                if let Some((t, wall)) = &r.blocks {
+                    block_table(t, wall * rayon::current_num_threads() as f64, out);
+                }
                 if r.path == "fused" {
                     fused.push(r);
                 }
@@ -513,6 +529,43 @@ fn against_pytorch(rows: &[SpeedUp], out: &mut dyn FnMut(&str)) {
     }
 }
 
+/// Each block's seconds, forward and backward, and its share of the
+/// steps' CPU time `cpu` (their wall-clock seconds × the threads); what is
+/// left ran outside the blocks (candle's own ops and copies, Adam, waiting).
+fn block_table(t: &[BlockTime], cpu: f64, out: &mut dyn FnMut(&str)) {
+    let mut names: Vec<&str> = Vec::new();
+    for b in t {
+        if !names.contains(&b.name) {
+            names.push(b.name);
+        }
+    }
+    let of = |n: &str, back: bool| {
+        t.iter()
+            .find(|b| b.name == n && b.backward == back)
+            .map_or(0.0, |b| b.seconds)
+    };
+    names.sort_by(|a, b| (of(b, false) + of(b, true)).total_cmp(&(of(a, false) + of(a, true))));
+    out(&format!(
+        "          {:<24} {:>8} {:>8} {:>7}",
+        "block (CPU s, all steps)", "forward", "backward", "share"
+    ));
+    let mut inside = 0.0;
+    for n in names {
+        let (f, b) = (of(n, false), of(n, true));
+        inside += f + b;
+        out(&format!(
+            "          {n:<24} {f:>8.3} {b:>8.3} {:>6.1}%",
+            100.0 * (f + b) / cpu
+        ));
+    }
+    out(&format!(
+        "          {:<24} {:>17.3} {:>6.1}%",
+        "outside the blocks",
+        cpu - inside,
+        100.0 * (cpu - inside) / cpu
+    ));
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -547,7 +600,33 @@ mod tests {
             median,
             min: median,
             sample: 0.0,
+            blocks: None,
         }
+    }
+
+    #[test]
+    fn the_block_table_gives_each_block_its_share_of_the_cpu_time() {
+        let b = |name, backward, seconds| BlockTime {
+            name,
+            backward,
+            seconds,
+            calls: 1,
+        };
+        let t = [
+            b("linear", true, 2.0),
+            b("linear", false, 1.0),
+            b("kl", false, 0.5),
+        ];
+        let mut lines = Vec::new();
+        block_table(&t, 10.0, &mut |l| lines.push(l.trim().to_string()));
+        let words = |l: &str| l.split_whitespace().map(String::from).collect::<Vec<_>>();
+        assert_eq!(lines.len(), 4);
+        assert_eq!(words(&lines[1]), ["linear", "1.000", "2.000", "30.0%"]);
+        assert_eq!(words(&lines[2]), ["kl", "0.500", "0.000", "5.0%"]);
+        assert_eq!(
+            words(&lines[3]),
+            ["outside", "the", "blocks", "6.500", "65.0%"]
+        );
     }
 
     /// Each round's model against the same round's PyTorch; the median over

@@ -175,6 +175,62 @@ fn add_rows_block() {
 }
 
 #[test]
+fn control_rows_block() {
+    // `base + ctl · w` per frame; the control is data (no gradient).
+    let (ctl, w) = (randn(16, &[3, 5, 4], 1.0), randn(17, &[4, 6], 0.5));
+    for (name, base) in [
+        ("per sequence", randn(18, &[3, 6], 0.5)),
+        ("shared", randn(19, &[1, 6], 0.5)),
+    ] {
+        let inputs = [ctl.clone(), w.clone(), base.clone()];
+        check(name, &inputs, &[1, 2], 1e-5, 6, |t| {
+            blocks::control_rows(&t[0], &t[1], &t[2]).unwrap()
+        });
+        // To the bit, the composition it replaced: a product with `wᵀ` and
+        // a zero bias, then `base` broadcast over the frames.
+        let before = || {
+            let none = Tensor::zeros(6, candle_core::DType::F32, &Device::Cpu).unwrap();
+            let wt = w.as_tensor().t().unwrap().contiguous().unwrap();
+            let r = blocks::linear(&ctl.as_tensor().detach(), &wt, &none, Act::None).unwrap();
+            r.broadcast_add(&base.as_tensor().unsqueeze(1).unwrap())
+                .unwrap()
+        };
+        let now =
+            || blocks::control_rows(ctl.as_tensor(), w.as_tensor(), base.as_tensor()).unwrap();
+        assert_eq!(values(&now()), values(&before()));
+        let (gn, gb) = (
+            project(&now()).backward().unwrap(),
+            project(&before()).backward().unwrap(),
+        );
+        for v in [&w, &base] {
+            assert_eq!(values(gn.get(v).unwrap()), values(gb.get(v).unwrap()));
+        }
+        assert!(gn.get(&ctl).is_none());
+    }
+    // One step (`[B, C]`, as generation runs): `[B, n]`, the same rows.
+    let one = blocks::control_rows(
+        &ctl.as_tensor().narrow(1, 2, 1).unwrap().squeeze(1).unwrap(),
+        w.as_tensor(),
+        &randn(18, &[3, 6], 0.5).as_tensor().clone(),
+    )
+    .unwrap();
+    let all = blocks::control_rows(
+        ctl.as_tensor(),
+        w.as_tensor(),
+        randn(18, &[3, 6], 0.5).as_tensor(),
+    )
+    .unwrap();
+    assert_eq!(one.dims(), [3, 6]);
+    assert!(rel(&values(&one), &values(&all.narrow(1, 2, 1).unwrap())) < 1e-6);
+    assert!(blocks::control_rows(
+        ctl.as_tensor(),
+        w.as_tensor(),
+        randn(20, &[2, 6], 0.5).as_tensor()
+    )
+    .is_err());
+}
+
+#[test]
 fn squared_error_block() {
     let (a, b) = (randn(4, &[2, 3, 5], 1.0), randn(5, &[2, 3, 5], 1.0));
     check("squared error", &[a, b], &[0, 1], 1e-5, 6, |t| {

@@ -461,6 +461,7 @@ impl CustomOp2 for FootLockOp {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (x, logits) = (slice(s1, l1, "x")?, slice(s2, l2, "logits")?);
         let (b, t, f) = l1.shape().dims3()?;
         if l2.shape().dims() != [b, t, 2] {
@@ -479,6 +480,7 @@ impl CustomOp2 for FootLockOp {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let (_, t, f) = x.dims3()?;
         let (gx, gl) = with_values(x, |xv| {
             with_values(logits, |lv| {
@@ -547,6 +549,7 @@ impl CustomOp2 for SlideOp {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (xh, x) = (slice(s1, l1, "x_hat")?, slice(s2, l2, "x")?);
         let (_, t, f) = l1.shape().dims3()?;
         if l1.shape() != l2.shape() {
@@ -566,6 +569,7 @@ impl CustomOp2 for SlideOp {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let (_, t, f) = xh.dims3()?;
         let (kx, kz, kt) = (f - 3, f - 2, f - 1);
         let g = grad.to_dtype(DType::F32)?.to_scalar::<f32>()?;
@@ -669,6 +673,7 @@ impl CustomOp2 for ContactOp {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (logits, x) = (slice(s1, l1, "logits")?, slice(s2, l2, "x")?);
         let mut sum = 0.0f64;
         self.each(logits, x, |_, l, t| {
@@ -684,6 +689,7 @@ impl CustomOp2 for ContactOp {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let g = grad.to_dtype(DType::F32)?.to_scalar::<f32>()?;
         let gl = with_values(logits, |lv| {
             with_values(x, |xv| {

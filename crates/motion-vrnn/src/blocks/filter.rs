@@ -84,12 +84,14 @@ impl CustomOp1 for SmoothOp {
     }
 
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let x = slice(s, l, "x")?;
         let (_, t, c) = l.shape().dims3()?;
         Ok((CpuStorage::F32(self.run(x, t, c, false)), l.shape().clone()))
     }
 
     fn bwd(&self, x: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let (_, t, c) = x.dims3()?;
         let dx = with_values(grad, |g| Ok(self.run(g, t, c, true)))?;
         Ok(Some(tensor(dx, x.dims(), x)?))

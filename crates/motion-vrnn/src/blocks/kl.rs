@@ -80,6 +80,7 @@ impl CustomOp2 for KlOp {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (q, p) = (slice(s1, l1, "q")?, slice(s2, l2, "p")?);
         let (_, t, z2) = l1.shape().dims3()?;
         let mut kl = 0.0f64;
@@ -103,6 +104,7 @@ impl CustomOp2 for KlOp {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let gk = grad.to_scalar::<f32>()?;
         let (_, t, z2) = q.dims3()?;
         let z = z2 / 2;

@@ -67,6 +67,7 @@ impl CustomOp3 for LinearOp {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (x, w, b) = (
             slice(s1, l1, "x")?,
             slice(s2, l2, "w")?,
@@ -91,6 +92,7 @@ impl CustomOp3 for LinearOp {
         res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let (rows, inp, out) = sizes(x.shape(), w.shape(), b.shape())?;
         // g = grad ⊙ act'(y) and db = Σ_rows g, in one pass (rows in order,
         // so db's sums keep their order).
@@ -179,6 +181,7 @@ impl CustomOp2 for SquaredError {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (a, b) = (slice(s1, l1, "a")?, slice(s2, l2, "b")?);
         let sum: f64 = a
             .iter()
@@ -198,6 +201,7 @@ impl CustomOp2 for SquaredError {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let g = 2.0 * grad.to_scalar::<f32>()?;
         let da = with_values(a, |av| {
             with_values(b, |bv| {
@@ -251,6 +255,7 @@ impl CustomOp2 for AddRows {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (y, r) = (slice(s1, l1, "y")?, slice(s2, l2, "r")?);
         let (b, t, n) = l1.shape().dims3()?;
         let per = if l2.shape().dims()[0] == 1 { 0 } else { n };
@@ -282,6 +287,7 @@ impl CustomOp2 for AddRows {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let (b, t, n) = y.dims3()?;
         let shared = r.dim(0)? == 1;
         let relu = self.act == Act::Relu;
@@ -352,4 +358,122 @@ pub(crate) fn row_sums(g: &[f32], [b, t, n]: [usize; 3], shared: bool) -> Vec<f3
         }
     }
     dr
+}
+
+/// `base + ctl · w` per frame: `ctl: [B, T, C]` (the control, data: it gets
+/// no gradient), `w: [C, n]`, `base: [B, n]` or `[1, n]` (a row per
+/// sequence, or one for all) → `[B, T, n]`; one step's `ctl: [B, C]` gives
+/// `[B, n]`. The bits of [`linear`] (`wᵀ`, a zero bias) plus `base`
+/// broadcast over the frames, in one pass each way where those take a
+/// product, a broadcast sum and, backward, candle's sum over the frames.
+pub fn control_rows(ctl: &Tensor, w: &Tensor, base: &Tensor) -> Result<Tensor> {
+    let ctl = ctl.detach();
+    if ctl.rank() == 3 && fused(&ctl) {
+        let (b, _, c) = ctl.dims3()?;
+        let (wc, n) = w.dims2()?;
+        let (rb, rn) = base.dims2()?;
+        if wc != c || rn != n || (rb != b && rb != 1) {
+            candle_core::bail!(
+                "control_rows: ctl {:?}, w {:?}, base {:?} do not fit",
+                ctl.shape(),
+                w.shape(),
+                base.shape()
+            );
+        }
+        return ctl
+            .contiguous()?
+            .apply_op3(&w.contiguous()?, &base.contiguous()?, ControlRows);
+    }
+    let none = Tensor::zeros(w.dim(1)?, candle_core::DType::F32, w.device())?;
+    let r = linear(&ctl, &w.t()?.contiguous()?, &none, Act::None)?;
+    let base = if ctl.rank() == 3 {
+        base.unsqueeze(1)?
+    } else {
+        base.clone()
+    };
+    r.broadcast_add(&base)
+}
+
+/// The fused [`control_rows`] over `[B, T, ·]`.
+struct ControlRows;
+
+/// `w: [C, n]` transposed (`[n, C]`, row-major), as [`linear`] reads it.
+fn transposed(w: &[f32], c: usize, n: usize) -> Vec<f32> {
+    (0..n)
+        .flat_map(|j| (0..c).map(move |k| w[k * n + j]))
+        .collect()
+}
+
+impl CustomOp3 for ControlRows {
+    fn name(&self) -> &'static str {
+        "control-rows"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+        s3: &CpuStorage,
+        l3: &Layout,
+    ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
+        let (ctl, w, base) = (
+            slice(s1, l1, "ctl")?,
+            slice(s2, l2, "w")?,
+            slice(s3, l3, "base")?,
+        );
+        let (b, t, c) = l1.shape().dims3()?;
+        let n = l2.shape().dims2()?.1;
+        let per = if l3.shape().dims()[0] == 1 { 0 } else { n };
+        let zeros = vec![0.0f32; n];
+        let wt = transposed(w, c, n);
+        let mut y = mm_rows((b * t, n, c), ctl, &wt, tr(0, c), Some(&zeros));
+        for (s, ys) in y.chunks_exact_mut((t * n).max(1)).enumerate() {
+            let rs = &base[s * per..s * per + n];
+            for row in ys.chunks_exact_mut(n.max(1)) {
+                row.iter_mut().zip(rs).for_each(|(v, r)| *v += r);
+            }
+        }
+        Ok((CpuStorage::F32(y), Shape::from((b, t, n))))
+    }
+
+    /// `w`'s gradient as [`linear`]'s backward sums it, `base`'s as
+    /// candle's sum over the frames (and the sequences, for one row), rows
+    /// in order: the bits of the composition.
+    fn bwd(
+        &self,
+        ctl: &Tensor,
+        w: &Tensor,
+        base: &Tensor,
+        _res: &Tensor,
+        grad: &Tensor,
+    ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
+        let (b, t, c) = ctl.dims3()?;
+        let n = w.dim(1)?;
+        let shared = base.dim(0)? == 1;
+        let (dw, dbase) = with_values(grad, |g| {
+            with_values(ctl, |x| {
+                let mut dwt = vec![0.0f32; n * c];
+                mm(
+                    (n, c, b * t),
+                    &mut dwt,
+                    rm(0, c),
+                    false,
+                    g,
+                    tr(0, n),
+                    x,
+                    rm(0, c),
+                );
+                Ok((transposed(&dwt, n, c), row_sums(g, [b, t, n], shared)))
+            })
+        })?;
+        Ok((
+            None,
+            Some(tensor(dw, w.dims(), w)?),
+            Some(tensor(dbase, base.dims(), base)?),
+        ))
+    }
 }

@@ -37,10 +37,11 @@ pub mod linear;
 pub(crate) mod rollout;
 pub mod scan;
 pub mod skeleton;
+pub mod timing;
 
 pub use kernels::SIGMA_MIN;
 pub use kl::gaussian_kl;
-pub use linear::{add_rows, linear, squared_error, Act};
+pub use linear::{add_rows, control_rows, linear, squared_error, Act};
 pub use scan::{latent_lstm, lstm_cell};
 
 thread_local! {

@@ -659,6 +659,7 @@ impl CustomOp3 for ScanOp {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (a, b2, w) = (
             slice(s1, l1, "pre")?,
             slice(s2, l2, "eps or pre")?,
@@ -678,6 +679,7 @@ impl CustomOp3 for ScanOp {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let (b, t, _) = a.dims3()?;
         let cached = self.cache.lock().unwrap_or_else(|p| p.into_inner()).take();
         let (dpre, mut dw) = with_values(a, |av| {

@@ -137,6 +137,7 @@ impl CustomOp3 for FkOp {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (d, y, len) = (
             slice(s1, l1, "dirs")?,
             slice(s2, l2, "y")?,
@@ -161,6 +162,7 @@ impl CustomOp3 for FkOp {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let rows = y.elem_count();
         let mut dd = vec![0.0f32; rows * 3 * BONES];
         let mut dy = vec![0.0f32; rows];
@@ -431,6 +433,7 @@ impl CustomOp2 for PlaceOp {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let (o, len) = (slice(s1, l1, "o")?, slice(s2, l2, "lengths")?);
         let out = place_rows(o, len, &self.mean, &self.std);
         Ok((CpuStorage::F32(out), l1.shape().clone()))
@@ -443,6 +446,7 @@ impl CustomOp2 for PlaceOp {
         _res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         let f = self.mean.len();
         let go = with_values(o, |ov| {
             with_values(lengths, |len| {

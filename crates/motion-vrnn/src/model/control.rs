@@ -79,30 +79,23 @@ impl Vrnn {
     /// The condition's rows `base` (`[B or 1, ·]`, one per sequence) plus
     /// the control's `ctl`: `[B, T, CONTROL]`, one row per frame, or one
     /// step's `[B, CONTROL]`. Each part (posterior, gates, prior, decoder)
-    /// is its own product: a slice of a per-frame tensor would cost candle
-    /// a zero-filled copy of the whole in the backward pass.
+    /// is its own [`control_rows`]: a slice of a per-frame tensor would cost
+    /// candle a zero-filled copy of the whole in the backward pass.
     pub(super) fn frame_bias(&self, base: &Tensor, ctl: &Tensor) -> Result<Bias> {
         let (Some(w), c) = (&self.control, &self.config) else {
             candle_core::bail!(
                 "this model was trained without the control; train one with the default model (`cargo xtask train`)"
             );
         };
-        // Over time, each sequence's row is added to every frame.
-        let per_frame = ctl.rank() == 3;
         let widths = [2 * c.latent, 4 * c.hidden, 2 * c.latent, c.decoder[0]];
         let mut at = 0;
         let mut parts = Vec::with_capacity(4);
         for n in widths {
-            let none = Tensor::zeros(n, DType::F32, w.device())?;
-            let r = linear(
+            parts.push(control_rows(
                 ctl,
-                &w.narrow(1, at, n)?.t()?.contiguous()?,
-                &none,
-                Act::None,
-            )?;
-            let b = base.narrow(1, at, n)?;
-            let b = if per_frame { b.unsqueeze(1)? } else { b };
-            parts.push(r.broadcast_add(&b)?);
+                &w.narrow(1, at, n)?,
+                &base.narrow(1, at, n)?,
+            )?);
             at += n;
         }
         let [enc, gates, prior, decoder]: [Tensor; 4] = parts

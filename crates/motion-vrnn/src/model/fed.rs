@@ -104,7 +104,7 @@ impl Vrnn {
         // control).
         let per_frame = i.bias.is_some_and(Bias::per_frame);
         let bias = i.bias.map(|b| b.at_step(0)).transpose()?;
-        let first = Steps::new(self, bias.as_ref())?;
+        let st = Steps::new(self)?;
         let (rho, rho_out) = (c.parts.latent_filter, c.parts.output_filter);
         let mut h = Tensor::zeros((x.dim(0)?, c.hidden), DType::F32, x.device())?;
         let mut cell = h.clone();
@@ -116,25 +116,21 @@ impl Vrnn {
                 Some(b) => Some(b.at_step(step)?),
                 None => None,
             };
-            let steps_t = stepped
-                .as_ref()
-                .map(|b| Steps::new(self, Some(b)))
-                .transpose()?;
-            let st = steps_t.as_ref().unwrap_or(&first);
+            let b = stepped.as_ref().or(bias.as_ref());
             let (xt, ft) = (xs.get(step)?, fs.get(step)?);
             // The posterior reads the real frame; its z goes to the LSTM.
-            let zq = draw(&st.posterior(&ft, &h)?, &eq.get(step)?, c.latent)?;
+            let zq = draw(&st.posterior(&ft, &h, b)?, &eq.get(step)?, c.latent)?;
             // The prior's draw makes the own frame (its noise alone at first).
-            let zp = st.prior_draw(&h, ep.get(step)?, step == 0)?;
+            let zp = st.prior_draw(&h, ep.get(step)?, step == 0, b)?;
             let zd = step_filter(&zf, zp, rho)?;
-            let o = step_filter(&of, self.decode_raw(&zd, &h, st.bias)?, rho_out)?;
+            let o = step_filter(&of, self.decode_raw(&zd, &h, b)?, rho_out)?;
             let l = ls.as_ref().map(|l| l.get(step)).transpose()?;
             let mut own = self.finish(&o, l.as_ref())?;
             if let Some(logits) = self.contact_logits(&o)? {
                 own = self.lock_step(prev.as_ref(), &own, &logits)?;
             }
             let xf = (&xt + (&own - &xt)?.broadcast_mul(&ms.get(step)?)?)?;
-            (h, cell) = st.advance(&self.features(&xf)?, &zq, &h, &cell)?;
+            (h, cell) = st.advance((&self.features(&xf)?, &zq), &h, &cell, b)?;
             (zf, of, prev) = (Some(zd), Some(o), Some(own));
             fed.push(xf);
         }
@@ -214,7 +210,15 @@ impl Vrnn {
             Some(bias) => {
                 let parts = [&bias.pre, &bias.prior, &bias.decoder];
                 let widths = parts.map(|p| p.dim(D::Minus1).unwrap_or(0));
-                (Tensor::cat(&parts, D::Minus1)?, Some(widths))
+                // Rows per frame: from the parts `pre` was made of, so the
+                // backward cuts the gradient once.
+                let cond = match &bias.parts {
+                    Some([enc, gates]) => {
+                        Tensor::cat(&[enc, gates, &bias.prior, &bias.decoder], D::Minus1)?
+                    }
+                    None => Tensor::cat(&parts, D::Minus1)?,
+                };
+                (cond, Some(widths))
             }
             None => (Tensor::zeros(1, DType::F32, i.x.device())?, None),
         };

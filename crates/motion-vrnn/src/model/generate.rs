@@ -8,6 +8,7 @@ use super::*;
 /// [`Generator::next`] makes one frame per sequence and feeds it back.
 pub struct Generator<'m> {
     m: &'m Vrnn,
+    steps: Steps,
     /// The real start frames `[B, K, input]` (features only), if any.
     start: Option<Tensor>,
     /// The condition's rows ([`Vrnn::rows`]) and their parts.
@@ -53,6 +54,7 @@ impl Vrnn {
         let h = Tensor::zeros((batch, self.config.hidden), DType::F32, dev)?;
         let mut g = Generator {
             m: self,
+            steps: Steps::new(self)?,
             start,
             rows: None,
             bias: None,
@@ -117,7 +119,7 @@ impl Generator<'_> {
         let asked = ctl
             .map(|ctl| m.step_bias(self.rows.as_ref(), ctl))
             .transpose()?;
-        let st = Steps::new(m, asked.as_ref().or(self.bias.as_ref()))?;
+        let (st, bias) = (&self.steps, asked.as_ref().or(self.bias.as_ref()));
         let (rho, rho_out) = (c.parts.latent_filter, c.parts.output_filter);
         // A real start frame is read through the posterior; later frames
         // draw z from the prior (N(0, I) at the first step).
@@ -125,7 +127,7 @@ impl Generator<'_> {
             Some(s) => {
                 let x = s.narrow(1, step, 1)?.squeeze(1)?;
                 let feat = m.features(&x)?;
-                let z = draw(&st.posterior(&feat, &self.h)?, e, c.latent)?;
+                let z = draw(&st.posterior(&feat, &self.h, bias)?, e, c.latent)?;
                 (Some((x, feat)), z)
             }
             None => {
@@ -133,13 +135,13 @@ impl Generator<'_> {
                     Some(tau) => (e * tau)?,
                     None => e.clone(),
                 };
-                (None, st.prior_draw(&self.h, e, step == 0)?)
+                (None, st.prior_draw(&self.h, e, step == 0, bias)?)
             }
         };
         let zd = step_filter(&self.zf, z.clone(), rho)?;
         // The decoder runs on start frames too, so its output filter has
         // the history it has in training.
-        let o = step_filter(&self.of, m.decode_raw(&zd, &self.h, st.bias)?, rho_out)?;
+        let o = step_filter(&self.of, m.decode_raw(&zd, &self.h, bias)?, rho_out)?;
         let (x, feat) = match real {
             Some(r) => {
                 if step + 1 == k {
@@ -166,7 +168,7 @@ impl Generator<'_> {
         };
         self.zf = Some(zd);
         self.of = Some(o);
-        (self.h, self.cell) = st.advance(&feat, &z, &self.h, &self.cell)?;
+        (self.h, self.cell) = st.advance((&feat, &z), &self.h, &self.cell, bias)?;
         self.last = Some(x.clone());
         self.step += 1;
         Ok(x)

@@ -36,8 +36,8 @@ use crate::blocks::feet::{self, ground, lock, FootLockOp, TOES};
 use crate::blocks::scan::ScanDims;
 use crate::blocks::skeleton::{bone_lengths, place, row_bone_lengths, PlaceOp, BONES};
 use crate::blocks::{
-    self, add_rows, filter, gaussian_kl, latent_lstm, linear, lstm_cell, rollout, squared_error,
-    Act,
+    self, add_rows, control_rows, filter, gaussian_kl, latent_lstm, linear, lstm_cell, rollout,
+    squared_error, Act,
 };
 use candle_core::{DType, Device, Result, Tensor, D};
 use candle_nn::VarBuilder;

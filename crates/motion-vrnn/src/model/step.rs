@@ -4,35 +4,22 @@
 use super::*;
 
 /// One step of the recurrence at a time, for the step loops (sampling,
-/// feeding back to every depth): the weights as each step reads them.
-pub(super) struct Steps<'a> {
-    /// The condition's rows (`[B or 1, ·]`).
-    pub(super) bias: Option<&'a Bias>,
-    /// The condition's share of the posterior and of the gates.
-    pub(super) enc_bias: Option<Tensor>,
-    pub(super) gates_bias: Option<Tensor>,
-    pub(super) prior: Lin,
-    pub(super) encoder: Lin,
-    pub(super) gates_in: Lin,
-    pub(super) w_hh: Tensor,
-    pub(super) no_bias: Tensor,
-    pub(super) latent: usize,
+/// feeding back to every depth): the weights as each step reads them,
+/// made once per loop; each step is given the condition's rows (`[B or 1,
+/// ·]`) it adds.
+pub(super) struct Steps {
+    prior: Lin,
+    encoder: Lin,
+    gates_in: Lin,
+    w_hh: Tensor,
+    no_bias: Tensor,
+    latent: usize,
+    hidden: usize,
 }
 
-impl<'a> Steps<'a> {
-    pub(super) fn new(m: &Vrnn, bias: Option<&'a Bias>) -> Result<Steps<'a>> {
-        let (z, h) = (m.config.latent, m.config.hidden);
-        let (enc_bias, gates_bias) = match bias {
-            Some(b) => (
-                Some(b.pre.narrow(1, 0, 2 * z)?),
-                Some(b.pre.narrow(1, 2 * z, 4 * h)?),
-            ),
-            None => (None, None),
-        };
+impl Steps {
+    pub(super) fn new(m: &Vrnn) -> Result<Steps> {
         Ok(Steps {
-            bias,
-            enc_bias,
-            gates_bias,
             prior: stacked(&m.prior[0], &m.prior[1])?,
             encoder: stacked(&m.encoder[0], &m.encoder[1])?,
             gates_in: Lin {
@@ -41,44 +28,67 @@ impl<'a> Steps<'a> {
             },
             w_hh: m.w_hh.clone(),
             no_bias: m.b_hh.zeros_like()?,
-            latent: z,
+            latent: m.config.latent,
+            hidden: m.config.hidden,
         })
     }
 
+    /// The condition's share of the posterior (`gates` false) or of the
+    /// gates: the part it was made as, else a slice of `pre`.
+    fn pre_part(&self, bias: Option<&Bias>, gates: bool) -> Result<Option<Tensor>> {
+        let Some(b) = bias else { return Ok(None) };
+        if let Some(parts) = &b.parts {
+            return Ok(Some(parts[gates as usize].clone()));
+        }
+        let (z2, h4) = (2 * self.latent, 4 * self.hidden);
+        match gates {
+            false => b.pre.narrow(1, 0, z2).map(Some),
+            true => b.pre.narrow(1, z2, h4).map(Some),
+        }
+    }
+
     /// The posterior's `[μ | logit σ]` from features `feat` and state `h`.
-    pub(super) fn posterior(&self, feat: &Tensor, h: &Tensor) -> Result<Tensor> {
+    pub(super) fn posterior(
+        &self,
+        feat: &Tensor,
+        h: &Tensor,
+        bias: Option<&Bias>,
+    ) -> Result<Tensor> {
         let q = self
             .encoder
             .forward(&Tensor::cat(&[feat, h], 1)?, Act::None)?;
-        plus(q, self.enc_bias.as_ref())
+        plus(q, self.pre_part(bias, false)?.as_ref())
     }
 
     /// The prior's draw from state `h` with noise `e` (`e` itself at the
     /// first step: `N(0, I)`).
-    pub(super) fn prior_draw(&self, h: &Tensor, e: Tensor, first: bool) -> Result<Tensor> {
+    pub(super) fn prior_draw(
+        &self,
+        h: &Tensor,
+        e: Tensor,
+        first: bool,
+        bias: Option<&Bias>,
+    ) -> Result<Tensor> {
         if first {
             return Ok(e);
         }
-        let p = plus(
-            self.prior.forward(h, Act::None)?,
-            self.bias.map(|b| &b.prior),
-        )?;
+        let p = plus(self.prior.forward(h, Act::None)?, bias.map(|b| &b.prior))?;
         draw(&p, &e, self.latent)
     }
 
     /// The LSTM's state `(h, c)` after reading `[feat, z]` from `(h, cell)`.
     pub(super) fn advance(
         &self,
-        feat: &Tensor,
-        z: &Tensor,
+        (feat, z): (&Tensor, &Tensor),
         h: &Tensor,
         cell: &Tensor,
+        bias: Option<&Bias>,
     ) -> Result<(Tensor, Tensor)> {
         let gates = (self
             .gates_in
             .forward(&Tensor::cat(&[feat, z], 1)?, Act::None)?
             + linear(h, &self.w_hh, &self.no_bias, Act::None)?)?;
-        lstm_cell(&plus(gates, self.gates_bias.as_ref())?, cell)
+        lstm_cell(&plus(gates, self.pre_part(bias, true)?.as_ref())?, cell)
     }
 }
 

@@ -798,6 +798,7 @@ impl RolloutOp {
     /// The fed-back frames ([`fed`]) of the real frames' features `feat`
     /// and the condition's rows `cond` (as the op's inputs).
     pub fn fed(&self, feat: &[f32], cond: &[f32]) -> Vec<f32> {
+        let _time = crate::blocks::timing::span("rollout, no gradient", false);
         let parts = self.cond_parts(cond);
         fed(&self.net, &self.shard(feat, parts.as_ref()))
     }
@@ -835,6 +836,7 @@ impl candle_core::CustomOp3 for RolloutOp {
         s3: &candle_core::CpuStorage,
         l3: &candle_core::Layout,
     ) -> candle_core::Result<(candle_core::CpuStorage, candle_core::Shape)> {
+        let _time = crate::blocks::timing::span(self.name(), false);
         let feat = super::slice(s1, l1, "feat")?;
         let parts = self.cond_parts(super::slice(s3, l3, "cond")?);
         let mut tape = Tape::default();
@@ -860,6 +862,7 @@ impl candle_core::CustomOp3 for RolloutOp {
         Option<candle_core::Tensor>,
         Option<candle_core::Tensor>,
     )> {
+        let _time = crate::blocks::timing::span(self.name(), true);
         use super::{tensor, with_values};
         let cached = self.tape.lock().unwrap_or_else(|p| p.into_inner()).take();
         let g = with_values(feat, |fv| {
