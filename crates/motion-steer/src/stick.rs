@@ -65,9 +65,20 @@ impl Stick {
     /// The control row for the frame where the root is at `at`, after the
     /// keys held there: the targets k frames ahead lie on the straight line
     /// from the root along the asked heading at the asked speed (on the root
-    /// itself when stopped), facing the asked heading; a root slower than
-    /// asked is led up to [`LEAD_M`] further on.
+    /// itself when stopped), facing the asked heading (on stopping, the
+    /// character's own facing); a root slower than asked is led up to
+    /// [`LEAD_M`] further on.
     pub fn control(&mut self, at: &Frame2, keys: Keys) -> [f32; CONTROL] {
+        if keys.stop {
+            // Stopping stands facing where the character faces: a turn
+            // asked while moving is not finished on the spot.
+            if self.moving {
+                self.heading = at.forward;
+            }
+            self.moving = false;
+        } else if keys.go {
+            self.moving = true;
+        }
         let a = (keys.turn.clamp(-1.0, 1.0) * TURN_DEG_PER_S / FPS).to_radians();
         let (s, c) = a.sin_cos();
         // Positive turns right: the forward axis moves towards the right
@@ -77,11 +88,6 @@ impl Stick {
         let h = [c * hx + s * right[0], c * hz + s * right[1]];
         let n = h[0].hypot(h[1]);
         self.heading = [h[0] / n, h[1] / n];
-        if keys.stop {
-            self.moving = false;
-        } else if keys.go {
-            self.moving = true;
-        }
         self.speed = match (self.moving, keys.run) {
             (false, _) => 0.0,
             (true, false) => self.speeds[0],

@@ -326,7 +326,8 @@ fn the_stick_turns_walks_runs_and_stops_as_the_keys_say() {
     let r = s.control(&at, Keys::default());
     assert!((r[8] as f64 - LEAD_M - 0.6).abs() < 1e-6 && (r[9] as f64).abs() < 1e-6);
     assert!((heading_deg([0.0, 1.0], s.heading()) - 90.0).abs() < 1e-6);
-    // Run while held; stop stands (targets on the root) until go.
+    // Run while held; stop stands (targets on the root, facing the
+    // character's own way, not the heading asked before) until go.
     s.control(
         &at,
         Keys {
@@ -344,6 +345,8 @@ fn the_stick_turns_walks_runs_and_stops_as_the_keys_say() {
     );
     assert_eq!(s.speed(), 0.0);
     assert!(r[..2].iter().chain(&r[4..6]).all(|v| v.abs() < 1e-9));
+    assert!(near2(s.heading(), at.forward));
+    assert_eq!([r[2], r[3]], [0.0, 1.0]);
     s.control(&at, Keys::default());
     assert_eq!(s.speed(), 0.0, "stopped until go");
     s.control(
