@@ -178,31 +178,22 @@ impl Player {
             let context: Vec<f32> = self.recent.iter().flatten().copied().collect();
             self.begin_run(context, true)?;
         }
+        let step = self.gen.step();
         let speeds = self.header.speeds;
-        let ctl = match self.gen.step() >= PACE_FRAMES {
+        let ctl = match step >= PACE_FRAMES {
             true => {
                 let root = self.root;
                 let stick = self
                     .stick
                     .get_or_insert_with(|| Stick::new(&root, speeds[0], speeds[1]));
-                let moving = stick.speed() > 0.0;
-                let row = stick.control(&root, keys);
-                // A stop or a go starts a run on the last frames made, so
-                // the pace it reads is the motion's now, not its start's.
-                if moving != (stick.speed() > 0.0) && self.recent.len() == PACE_FRAMES {
-                    self.run += 1;
-                    let context: Vec<f32> = self.recent.iter().flatten().copied().collect();
-                    self.begin_run(context, true)?;
-                }
                 Some(Tensor::from_slice(
-                    &row,
+                    &stick.control(&root, keys),
                     (1, motion_steer::CONTROL),
                     &Device::Cpu,
                 )?)
             }
             false => None,
         };
-        let step = self.gen.step();
         let x = self
             .gen
             .next(&self.eps.get(step)?, ctl.as_ref())?
