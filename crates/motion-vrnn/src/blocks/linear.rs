@@ -100,20 +100,7 @@ impl CustomOp3 for LinearOp {
         let (g, db) = with_values(grad, |g| {
             with_values(res, |y| Ok(relu_grad(g, y, out, relu)))
         })?;
-        let mut dw = vec![0.0f32; out * inp];
-        with_values(x, |xv| {
-            mm(
-                (out, inp, rows),
-                &mut dw,
-                rm(0, inp),
-                false,
-                &g,
-                tr(0, out),
-                xv,
-                rm(0, inp),
-            );
-            Ok(())
-        })?;
+        let dw = with_values(x, |xv| Ok(weight_grad(&g, xv, (rows, inp, out))))?;
         // No input gradient where nothing upstream needs it (the real
         // frames, the fed-back ones): for the first layer it costs as much
         // as the weights' gradient.
@@ -131,6 +118,24 @@ impl CustomOp3 for LinearOp {
             Some(tensor(db, b.dims(), b)?),
         ))
     }
+}
+
+/// A dense layer's weight gradient `gᵀ · x` (`[out, inp]`) over `rows`
+/// rows of the output's gradient `g` (`rows × out`) and the input `x`
+/// (`rows × inp`), summed in [`mm`]'s order.
+fn weight_grad(g: &[f32], x: &[f32], (rows, inp, out): (usize, usize, usize)) -> Vec<f32> {
+    let mut dw = vec![0.0f32; out * inp];
+    mm(
+        (out, inp, rows),
+        &mut dw,
+        rm(0, inp),
+        false,
+        g,
+        tr(0, out),
+        x,
+        rm(0, inp),
+    );
+    dw
 }
 
 simd_fn! {
@@ -456,17 +461,7 @@ impl CustomOp3 for ControlRows {
         let shared = base.dim(0)? == 1;
         let (dw, dbase) = with_values(grad, |g| {
             with_values(ctl, |x| {
-                let mut dwt = vec![0.0f32; n * c];
-                mm(
-                    (n, c, b * t),
-                    &mut dwt,
-                    rm(0, c),
-                    false,
-                    g,
-                    tr(0, n),
-                    x,
-                    rm(0, c),
-                );
+                let dwt = weight_grad(g, x, (b * t, c, n));
                 Ok((transposed(&dwt, n, c), row_sums(g, [b, t, n], shared)))
             })
         })?;
