@@ -530,32 +530,22 @@ fn against_pytorch(rows: &[SpeedUp], out: &mut dyn FnMut(&str)) {
 }
 
 /// Each block's seconds, forward and backward, and its share of the
-/// steps' CPU time `cpu` (their wall-clock seconds × the threads); what is
-/// left ran outside the blocks (candle's own ops and copies, Adam, waiting).
+/// steps' CPU time `cpu` (their wall-clock seconds × the threads), in the
+/// order given ([`timing::stop`]'s, slowest first); what is left ran
+/// outside the blocks (candle's own ops and copies, Adam, waiting).
 fn block_table(t: &[BlockTime], cpu: f64, out: &mut dyn FnMut(&str)) {
-    let mut names: Vec<&str> = Vec::new();
-    for b in t {
-        if !names.contains(&b.name) {
-            names.push(b.name);
-        }
-    }
-    let of = |n: &str, back: bool| {
-        t.iter()
-            .find(|b| b.name == n && b.backward == back)
-            .map_or(0.0, |b| b.seconds)
-    };
-    names.sort_by(|a, b| (of(b, false) + of(b, true)).total_cmp(&(of(a, false) + of(a, true))));
     out(&format!(
         "          {:<24} {:>8} {:>8} {:>7}",
         "block (CPU s, all steps)", "forward", "backward", "share"
     ));
     let mut inside = 0.0;
-    for n in names {
-        let (f, b) = (of(n, false), of(n, true));
-        inside += f + b;
+    for b in t {
+        let (f, w) = (b.forward, b.backward);
+        inside += f + w;
         out(&format!(
-            "          {n:<24} {f:>8.3} {b:>8.3} {:>6.1}%",
-            100.0 * (f + b) / cpu
+            "          {:<24} {f:>8.3} {w:>8.3} {:>6.1}%",
+            b.name,
+            100.0 * (f + w) / cpu
         ));
     }
     out(&format!(
@@ -606,17 +596,13 @@ mod tests {
 
     #[test]
     fn the_block_table_gives_each_block_its_share_of_the_cpu_time() {
-        let b = |name, backward, seconds| BlockTime {
+        let b = |name, forward, backward| BlockTime {
             name,
+            forward,
             backward,
-            seconds,
             calls: 1,
         };
-        let t = [
-            b("linear", true, 2.0),
-            b("linear", false, 1.0),
-            b("kl", false, 0.5),
-        ];
+        let t = [b("linear", 1.0, 2.0), b("kl", 0.5, 0.0)];
         let mut lines = Vec::new();
         block_table(&t, 10.0, &mut |l| lines.push(l.trim().to_string()));
         let words = |l: &str| l.split_whitespace().map(String::from).collect::<Vec<_>>();
