@@ -2,7 +2,7 @@
 //! model, compiled to WebAssembly (crate `motion-play`), makes a motion
 //! frame by frame as the keys say, drawn with three.js (`docs/play.md`).
 
-use crate::viewer::{script_safe, FIGURE_JS, THREE_BUNDLE, THREE_LICENSE};
+use crate::viewer::{page, script_safe};
 use crate::RenderError;
 use mocap_ingest::skeleton::JOINT_PARENTS;
 use std::path::Path;
@@ -36,19 +36,8 @@ pub fn play_html(wasm: &[u8], bundle: &[u8], seed: u64) -> String {
         .map(|p| p.map_or(-1, |p| p as i64))
         .collect();
     let meta = serde_json::json!({ "fps": 30, "parents": parents, "seed": seed });
-    let licence = THREE_LICENSE.replace("-->", "- ->");
-    format!(
-        r#"<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>motion player</title>
-<!-- three.js, vendored (crates/motion-render/viewer/):
-{licence}-->
-<style>
-body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
-#hud {{ font-weight: bold; margin-bottom: 4px; }}
-#err {{ color: #b00; }}
-#view canvas {{ border: 1px solid #ddd; display: block; }}
-</style></head><body>
-<div id="hud">loading the model…</div>
+    let body = format!(
+        r#"<div id="hud">loading the model…</div>
 <div id="keys"></div>
 <div id="err"></div>
 <div id="view"></div>
@@ -56,18 +45,13 @@ body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
 <script id="play-meta" type="application/json">{meta}</script>
 <script id="play-wasm" type="application/octet-stream">{wasm}</script>
 <script id="play-bundle" type="application/octet-stream">{bundle}</script>
-<script>{three}</script>
-<script>{figure}</script>
-<script>{js}</script>
-</body></html>
 "#,
         meta = script_safe(&meta.to_string()),
         wasm = base64(wasm),
         bundle = base64(bundle),
-        three = script_safe(THREE_BUNDLE),
-        figure = script_safe(FIGURE_JS),
-        js = script_safe(PLAY_JS),
-    )
+    );
+    let css = "#hud { font-weight: bold; margin-bottom: 4px; }\n";
+    page("motion player", css, &body, PLAY_JS)
 }
 
 /// Write a page ([`play_html`]) at `path` (atomically; its folder made

@@ -65,20 +65,11 @@ pub fn viewer_html(sets: &[MotionSet]) -> String {
             )
         })
         .collect();
-    let licence = THREE_LICENSE.replace("-->", "- ->");
-    format!(
-        r#"<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>motion viewer</title>
-<!-- three.js, vendored (crates/motion-render/viewer/):
-{licence}-->
-<style>
-body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
-#bar {{ display: flex; gap: 12px; align-items: center; margin-bottom: 8px; flex-wrap: wrap; }}
-#slider {{ width: 360px; }}
-#err {{ color: #b00; }}
-#view canvas {{ border: 1px solid #ddd; display: block; }}
-</style></head><body>
-<div id="bar">
+    let css = "#bar { display: flex; gap: 12px; align-items: center; margin-bottom: 8px; flex-wrap: wrap; }
+#slider { width: 360px; }
+";
+    let body = format!(
+        r#"<div id="bar">
   <select id="set"></select>
   <label><input id="overlay" type="checkbox"> overlay pairs</label>
   <button id="play">pause</button>
@@ -90,15 +81,35 @@ body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
 <div id="view"></div>
 <p><span id="legend"></span> Drag to orbit, right-drag to pan, wheel to zoom. Grid: 10 units (0.56 m). Written by <code>cargo xtask sample</code>.</p>
 <script id="motion-data" type="application/json">{data}</script>
-<script>{three}</script>
+"#,
+        data = script_safe(&format!("[{}]", data.join(","))),
+    );
+    page("motion viewer", css, &body, VIEWER_JS)
+}
+
+/// A self-contained page: `title`, three.js's licence in a comment, the
+/// styles every page shares (after `css`'s own rules), `body`, then
+/// three.js, the shared figure ([`FIGURE_JS`]) and `js`, each inline.
+pub(crate) fn page(title: &str, css: &str, body: &str, js: &str) -> String {
+    let licence = THREE_LICENSE.replace("-->", "- ->");
+    format!(
+        r#"<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
+<!-- three.js, vendored (crates/motion-render/viewer/):
+{licence}-->
+<style>
+body {{ font: 14px sans-serif; margin: 12px; color: #222; }}
+{css}#err {{ color: #b00; }}
+#view canvas {{ border: 1px solid #ddd; display: block; }}
+</style></head><body>
+{body}<script>{three}</script>
 <script>{figure}</script>
 <script>{js}</script>
 </body></html>
 "#,
-        data = script_safe(&format!("[{}]", data.join(","))),
         three = script_safe(THREE_BUNDLE),
         figure = script_safe(FIGURE_JS),
-        js = script_safe(VIEWER_JS),
+        js = script_safe(js),
     )
 }
 
