@@ -23,7 +23,7 @@ impl DenseGrad {
 
 /// What [`fed_backward`] gives: the gradients of the real frames' features
 /// (`[B, T, E2]`), of every weight of the [`Net`], and of the condition's
-/// rows (the shapes of [`Cond`]'s).
+/// rows (laid out as [`Cond::rows`]).
 #[derive(Clone, Debug)]
 pub struct Grads {
     pub feat: Vec<f32>,
@@ -34,7 +34,7 @@ pub struct Grads {
     pub w_ih: Vec<f32>,
     pub w_hh: Vec<f32>,
     pub b_gates: Vec<f32>,
-    pub cond: Option<[Vec<f32>; 3]>,
+    pub cond: Option<Vec<f32>>,
 }
 
 /// `dw[:, from..from + k] += Σ_rows dyᵀ a` over `n` rows (`dy`: `n × out`,
@@ -183,13 +183,7 @@ impl<'a> Back<'a> {
             w_ih: vec![0.0; net.w_ih.len()],
             w_hh: vec![0.0; net.w_hh.len()],
             b_gates: vec![0.0; h4],
-            cond: sh.cond.as_ref().map(|c| {
-                [
-                    vec![0.0; c.pre.len()],
-                    vec![0.0; c.prior.len()],
-                    vec![0.0; c.decoder.len()],
-                ]
-            }),
+            cond: sh.cond.as_ref().map(|c| vec![0.0; c.rows.len()]),
         };
         let n = b * tt;
         let rows = |w: usize| vec![0.0f32; n * w];
@@ -308,8 +302,8 @@ impl<'a> Back<'a> {
             let dg = &dgs[r * h4..(r + 1) * h4];
             add(&mut gr.b_gates, dg);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
-                let at = cond_at(c.pre.len(), z2 + h4, b, s, t);
-                add(&mut gc[0][at + z2..at + z2 + h4], dg);
+                let at = c.at(Part::Pre, b, s, t) + z2;
+                add(&mut gc[at..at + h4], dg);
             }
         }
         // The gates' inputs: z_q, h_{t−1}, and the frame's features (the
@@ -492,8 +486,8 @@ impl<'a> Back<'a> {
             relu_back(g1, &tape.a1[r * d[0].out..(r + 1) * d[0].out]);
             add(&mut gr.decoder[0].b, g1);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
-                let at = cond_at(c.decoder.len(), d[0].out, b, s, t);
-                add(&mut gc[2][at..at + d[0].out], g1);
+                let at = c.at(Part::Decoder, b, s, t);
+                add(&mut gc[at..at + d[0].out], g1);
             }
         }
         dec[0].rows(b, dus, rm(0, zh), false, &da1[step(t, d[0].out)]);
@@ -510,7 +504,6 @@ impl<'a> Back<'a> {
             tt,
             e2,
             z2,
-            h4,
             zh,
             g_in,
             ..
@@ -557,8 +550,8 @@ impl<'a> Back<'a> {
                 let dp = &dps[r * z2..(r + 1) * z2];
                 add(&mut gr.prior.b, dp);
                 if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
-                    let at = cond_at(c.prior.len(), z2, b, s, t);
-                    add(&mut gc[1][at..at + z2], dp);
+                    let at = c.at(Part::Prior, b, s, t);
+                    add(&mut gc[at..at + z2], dp);
                 }
             }
             // The posterior's draw: from the real frame's features and h.
@@ -571,8 +564,8 @@ impl<'a> Back<'a> {
             let de = &des[r * z2..(r + 1) * z2];
             add(&mut gr.encoder.b, de);
             if let (Some(c), Some(gc)) = (&sh.cond, gr.cond.as_mut()) {
-                let at = cond_at(c.pre.len(), z2 + h4, b, s, t);
-                add(&mut gc[0][at..at + z2], de);
+                let at = c.at(Part::Pre, b, s, t);
+                add(&mut gc[at..at + z2], de);
             }
         }
         if t > 0 {

@@ -69,12 +69,37 @@ pub struct Net {
     pub place: Option<PlaceOp>,
 }
 
-/// The condition's rows (`[n, ·]`, `n` = 1 or the batch): added to the
-/// posterior and gates, the prior, and the decoder's first layer.
+/// The condition's rows, each `pre | prior | decoder` (the widths of
+/// [`Cond::widths`]): one row for all, one per sequence (`[B, ·]`), or one
+/// per sequence and step (`[B, T, ·]`). They are added to the posterior and
+/// gates, the prior, and the decoder's first layer.
 pub struct Cond<'a> {
-    pub pre: &'a [f32],
-    pub prior: &'a [f32],
-    pub decoder: &'a [f32],
+    pub rows: &'a [f32],
+    pub widths: [usize; 3],
+}
+
+/// Which part of a condition row (the order of [`Cond::widths`]).
+#[derive(Clone, Copy)]
+pub(super) enum Part {
+    Pre = 0,
+    Prior = 1,
+    Decoder = 2,
+}
+
+impl Cond<'_> {
+    /// Where `part` of the row of sequence `s` (of `b`) at step `t` starts
+    /// in [`Cond::rows`] (and in its gradient, laid out alike).
+    #[inline(always)]
+    pub(super) fn at(&self, part: Part, b: usize, s: usize, t: usize) -> usize {
+        let [pre, prior, _] = self.widths;
+        let w = self.widths.iter().sum();
+        let off = match part {
+            Part::Pre => 0,
+            Part::Prior => pre,
+            Part::Decoder => pre + prior,
+        };
+        cond_at(self.rows.len(), w, b, s, t) + off
+    }
 }
 
 /// The shard: `b` sequences of `t` frames, each in the input's order
@@ -111,15 +136,15 @@ pub(super) fn cond_at(len: usize, w: usize, b: usize, s: usize, t: usize) -> usi
 }
 
 /// `dst` rows (`n` wide, one per sequence) ← `bias` (+ each sequence's
-/// condition row at step `t`).
+/// condition row's `part` at step `t`).
 #[inline(always)]
-fn fill(dst: &mut [f32], bias: &[f32], cond: Option<(&[f32], usize)>, n: usize, t: usize) {
+fn fill(dst: &mut [f32], bias: &[f32], cond: Option<(&Cond, Part)>, n: usize, t: usize) {
     let b = dst.len() / n.max(1);
     for (s, row) in dst.chunks_exact_mut(n).enumerate() {
         row.copy_from_slice(bias);
-        if let Some((c, width)) = cond {
-            let at = cond_at(c.len(), width, b, s, t);
-            for (v, a) in row.iter_mut().zip(&c[at..at + n]) {
+        if let Some((c, part)) = cond {
+            let at = c.at(part, b, s, t);
+            for (v, a) in row.iter_mut().zip(&c.rows[at..at + n]) {
                 *v += a;
             }
         }
@@ -193,12 +218,12 @@ fn layer(
     dst: &mut [f32],
     a: &[f32],
     l: (&Rhs, &[f32]),
-    cond: Option<(&[f32], usize, usize)>,
+    cond: Option<(&Cond, Part, usize)>,
     relu: bool,
 ) {
     let n = l.0.n;
     match cond {
-        Some((c, w, t)) => fill(&mut dst[..m * n], l.1, Some((c, w)), n, t),
+        Some((c, part, t)) => fill(&mut dst[..m * n], l.1, Some((c, part)), n, t),
         None => fill(&mut dst[..m * n], l.1, None, n, 0),
     }
     l.0.acc(m, dst, a);
@@ -299,10 +324,6 @@ struct Fwd<'a> {
     gates_fx: Rhs<'a>,
     gates_z: Rhs<'a>,
     gates_h: Rhs<'a>,
-    /// The condition's rows with their widths.
-    c_pre: Option<(&'a [f32], usize)>,
-    c_prior: Option<(&'a [f32], usize)>,
-    c_dec: Option<(&'a [f32], usize)>,
     /// The state, the filters' last values, the own frame and the last one,
     /// the fed frames, and the step's layers.
     hs: Vec<f32>,
@@ -348,14 +369,6 @@ impl<'a> Fwd<'a> {
             tr(0, e2 + z),
             Some(&net.b_gates),
         );
-        let (c_pre, c_prior, c_dec) = match &sh.cond {
-            Some(c) => (
-                Some((c.pre, z2 + h4)),
-                Some((c.prior, z2)),
-                Some((c.decoder, d[0].out)),
-            ),
-            None => (None, None, None),
-        };
         let gain = |rho: f32| (1.0 - rho * rho).max(0.0).sqrt();
         let (g_in, g_out) = (gain(net.rho), gain(net.rho_out));
         let mut tape = tape;
@@ -390,9 +403,6 @@ impl<'a> Fwd<'a> {
             gates_fx: Rhs::new(&net.w_ih, e2 + z, 0, e2, h4),
             gates_z: Rhs::new(&net.w_ih, e2 + z, e2, z, h4),
             gates_h: Rhs::new(&net.w_hh, h, 0, h, h4),
-            c_pre,
-            c_prior,
-            c_dec,
             hs: vec![0.0f32; b * h],
             cs: vec![0.0f32; b * h],
             tc: vec![0.0f32; h],
@@ -434,8 +444,6 @@ impl<'a> Fwd<'a> {
             ..
         } = self.sizes;
         let at = |s: usize| s * tt + t;
-        let c_pre = self.c_pre;
-        let c_prior = self.c_prior;
         let Fwd {
             net,
             sh,
@@ -452,7 +460,8 @@ impl<'a> Fwd<'a> {
         } = self;
         // The posterior: e = enc_x + b (+ condition) + h · W_eᵀ; the prior:
         // p = b (+ condition) + h · W_pᵀ.
-        fill(e, &net.encoder.b, c_pre, z2, t);
+        let cond = sh.cond.as_ref();
+        fill(e, &net.encoder.b, cond.map(|c| (c, Part::Pre)), z2, t);
         for s in 0..b {
             let x = &enc_x[at(s) * z2..(at(s) + 1) * z2];
             e[s * z2..(s + 1) * z2]
@@ -460,7 +469,7 @@ impl<'a> Fwd<'a> {
                 .zip(x)
                 .for_each(|(v, a)| *v += a);
         }
-        fill(p, &net.prior.b, c_prior, z2, t);
+        fill(p, &net.prior.b, cond.map(|c| (c, Part::Prior)), z2, t);
         if t > 0 {
             enc_h.acc(b, e, hs);
             prior.acc(b, p, hs);
@@ -500,9 +509,9 @@ impl<'a> Fwd<'a> {
             g_out,
             ..
         } = self.sizes;
-        let c_dec = self.c_dec;
         let Fwd {
             net,
+            sh,
             tape,
             dec,
             hs,
@@ -525,7 +534,7 @@ impl<'a> Fwd<'a> {
             a1,
             u,
             (&dec[0], &d[0].b),
-            c_dec.map(|(c, w)| (c, w, t)),
+            sh.cond.as_ref().map(|c| (c, Part::Decoder, t)),
             true,
         );
         layer(b, a2, a1, (&dec[1], &d[1].b), None, true);
@@ -672,8 +681,8 @@ impl<'a> Fwd<'a> {
     #[inline(always)]
     fn gates(&mut self, t: usize) {
         let Sizes { h, b, z2, h4, .. } = self.sizes;
-        let c_pre = self.c_pre;
         let Fwd {
+            sh,
             tape,
             gates_z,
             gates_h,
@@ -688,10 +697,10 @@ impl<'a> Fwd<'a> {
             ..
         } = self;
         // The gates: + condition + z · W_zᵀ + h · W_hᵀ, then the cell.
-        if let Some((c, w)) = c_pre {
+        if let Some(c) = &sh.cond {
             for s in 0..b {
-                let at = cond_at(c.len(), w, b, s, t);
-                let row = &c[at + z2..at + w];
+                let at = c.at(Part::Pre, b, s, t) + z2;
+                let row = &c.rows[at..at + h4];
                 g[s * h4..(s + 1) * h4]
                     .iter_mut()
                     .zip(row)
@@ -782,28 +791,14 @@ pub struct RolloutOp {
 }
 
 impl RolloutOp {
-    /// The condition's rows cut into its three parts.
-    fn cond_parts(&self, c: &[f32]) -> Option<[Vec<f32>; 3]> {
-        let [a, b, d] = self.cond?;
-        let w = a + b + d;
-        let mut parts = [Vec::new(), Vec::new(), Vec::new()];
-        for row in c.chunks_exact(w) {
-            parts[0].extend_from_slice(&row[..a]);
-            parts[1].extend_from_slice(&row[a..a + b]);
-            parts[2].extend_from_slice(&row[a + b..]);
-        }
-        Some(parts)
-    }
-
     /// The fed-back frames ([`fed`]) of the real frames' features `feat`
     /// and the condition's rows `cond` (as the op's inputs).
     pub fn fed(&self, feat: &[f32], cond: &[f32]) -> Vec<f32> {
         let _time = crate::blocks::timing::span("rollout, no gradient", false);
-        let parts = self.cond_parts(cond);
-        fed(&self.net, &self.shard(feat, parts.as_ref()))
+        fed(&self.net, &self.shard(feat, cond))
     }
 
-    fn shard<'a>(&'a self, feat: &'a [f32], cond: Option<&'a [Vec<f32>; 3]>) -> Shard<'a> {
+    fn shard<'a>(&'a self, feat: &'a [f32], cond: &'a [f32]) -> Shard<'a> {
         Shard {
             b: self.b,
             t: self.t,
@@ -813,11 +808,7 @@ impl RolloutOp {
             e: &self.e,
             mask: &self.mask,
             lengths: self.lengths.as_deref(),
-            cond: cond.map(|[pre, prior, decoder]| Cond {
-                pre,
-                prior,
-                decoder,
-            }),
+            cond: self.cond.map(|widths| Cond { rows: cond, widths }),
         }
     }
 }
@@ -838,13 +829,9 @@ impl candle_core::CustomOp3 for RolloutOp {
     ) -> candle_core::Result<(candle_core::CpuStorage, candle_core::Shape)> {
         let _time = crate::blocks::timing::span(self.name(), false);
         let feat = super::slice(s1, l1, "feat")?;
-        let parts = self.cond_parts(super::slice(s3, l3, "cond")?);
+        let cond = super::slice(s3, l3, "cond")?;
         let mut tape = Tape::default();
-        let out = pass(
-            &self.net,
-            &self.shard(feat, parts.as_ref()),
-            Some(&mut tape),
-        );
+        let out = pass(&self.net, &self.shard(feat, cond), Some(&mut tape));
         *self.tape.lock().unwrap_or_else(|p| p.into_inner()) = Some(tape);
         let shape = candle_core::Shape::from((self.b, self.t, self.net.input));
         Ok((candle_core::CpuStorage::F32(out), shape))
@@ -865,10 +852,9 @@ impl candle_core::CustomOp3 for RolloutOp {
         let _time = crate::blocks::timing::span(self.name(), true);
         use super::{tensor, with_values};
         let cached = self.tape.lock().unwrap_or_else(|p| p.into_inner()).take();
-        let g = with_values(feat, |fv| {
+        let mut g = with_values(feat, |fv| {
             with_values(cond, |cv| {
-                let parts = self.cond_parts(cv);
-                let sh = self.shard(fv, parts.as_ref());
+                let sh = self.shard(fv, cv);
                 let tape = match cached {
                     Some(t) => t,
                     None => {
@@ -882,22 +868,11 @@ impl candle_core::CustomOp3 for RolloutOp {
                 })
             })
         })?;
-        let dcond = match (&g.cond, self.cond) {
-            (Some([a, b, d]), Some([wa, wb, wd])) => {
-                let mut v = Vec::with_capacity(cond.elem_count());
-                for ((ra, rb), rd) in a
-                    .chunks_exact(wa)
-                    .zip(b.chunks_exact(wb))
-                    .zip(d.chunks_exact(wd))
-                {
-                    v.extend_from_slice(ra);
-                    v.extend_from_slice(rb);
-                    v.extend_from_slice(rd);
-                }
-                Some(tensor(v, cond.dims(), cond)?)
-            }
-            _ => None,
-        };
+        let dcond = g
+            .cond
+            .take()
+            .map(|v| tensor(v, cond.dims(), cond))
+            .transpose()?;
         let dw = tensor(g.weights(), w.dims(), w)?;
         Ok((Some(tensor(g.feat, feat.dims(), feat)?), Some(dw), dcond))
     }
