@@ -221,16 +221,18 @@ impl CustomOp2 for SquaredError {
 }
 
 /// `act(y + r)` with one row `r` per sequence: `y: [B, T, n]`, `r: [B, 1, n]`
-/// or `[1, 1, n]` (a condition's bias, added to every frame); or one step,
-/// `y: [B, n]` and `r: [B, n]` or `[1, n]`. One pass where candle's
-/// `broadcast_add` and `relu` take two forward and five backward.
+/// or `[1, 1, n]` (a condition's bias, added to every frame), or one per
+/// frame, `r: [B, T, n]` (with the control); or one step, `y: [B, n]` and
+/// `r: [B, n]` or `[1, n]`. One pass where candle's `broadcast_add` and
+/// `relu` take two forward and five backward.
 pub fn add_rows(y: &Tensor, r: &Tensor, act: Act) -> Result<Tensor> {
     if y.rank() == 2 && r.rank() == 2 {
         return add_rows(&y.unsqueeze(1)?, &r.unsqueeze(1)?, act)?.squeeze(1);
     }
     let (b, _, n) = y.dims3()?;
-    let (rb, one, rn) = r.dims3()?;
-    if one != 1 || rn != n || (rb != b && rb != 1) {
+    let (rb, rt, rn) = r.dims3()?;
+    let per_frame = rt > 1 && rt == y.dim(1)? && rb == b;
+    if (rt != 1 && !per_frame) || rn != n || (rb != b && rb != 1) {
         candle_core::bail!("add_rows: y {:?}, r {:?} do not fit", y.shape(), r.shape());
     }
     if fused(y) {
@@ -263,12 +265,13 @@ impl CustomOp2 for AddRows {
         let _time = crate::blocks::timing::span(self.name(), false);
         let (y, r) = (slice(s1, l1, "y")?, slice(s2, l2, "r")?);
         let (b, t, n) = l1.shape().dims3()?;
-        let per = if l2.shape().dims()[0] == 1 { 0 } else { n };
+        let rows = Rows::of(l2.shape().dims(), t);
         let relu = self.act == Act::Relu;
         let mut out = Vec::with_capacity(y.len());
         for (s, ys) in y.chunks_exact((t * n).max(1)).enumerate().take(b) {
-            let rs = &r[s * per..s * per + n];
-            for yr in ys.chunks_exact(n.max(1)) {
+            for (k, yr) in ys.chunks_exact(n.max(1)).enumerate() {
+                let at = rows.at(s, k, t, n);
+                let rs = &r[at..at + n];
                 out.extend(yr.iter().zip(rs).map(|(a, c)| {
                     let v = a + c;
                     if relu {
@@ -283,8 +286,9 @@ impl CustomOp2 for AddRows {
     }
 
     /// The gradients as candle's autograd gives them, to the bit: `y`'s is
-    /// the output's (zero where `y + r < 0` under the ReLU), `r`'s its sum
-    /// over the frames (and the sequences, for a shared row) in row order.
+    /// the output's (zero where `y + r < 0` under the ReLU), `r`'s the same
+    /// per frame, else its sum over the frames (and the sequences, for a
+    /// shared row) in row order.
     fn bwd(
         &self,
         y: &Tensor,
@@ -294,13 +298,11 @@ impl CustomOp2 for AddRows {
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         let _time = crate::blocks::timing::span(self.name(), true);
         let (b, t, n) = y.dims3()?;
-        let shared = r.dim(0)? == 1;
+        let rows = Rows::of(r.dims(), t);
         let relu = self.act == Act::Relu;
         let (dy, dr) = with_values(grad, |g| {
             with_values(y, |yv| {
-                with_values(r, |rv| {
-                    Ok(add_rows_grad(g, yv, rv, [b, t, n], shared, relu))
-                })
+                with_values(r, |rv| Ok(add_rows_grad(g, yv, rv, [b, t, n], rows, relu)))
             })
         })?;
         Ok((
@@ -317,15 +319,15 @@ fn add_rows_grad(
     y: &[f32],
     r: &[f32],
     dims: [usize; 3],
-    shared: bool,
+    rows: Rows,
     relu: bool,
 ) -> (Vec<f32>, Vec<f32>) {
     let [b, t, n] = dims;
-    let per = if shared { 0 } else { n };
     let mut dy = vec![0.0f32; g.len()];
     for s in 0..b {
-        let rs = &r[s * per..s * per + n];
         for k in 0..t {
+            let ra = rows.at(s, k, t, n);
+            let rs = &r[ra..ra + n];
             let at = (s * t + k) * n;
             let (gr, yr, dyr) = (&g[at..at + n], &y[at..at + n], &mut dy[at..at + n]);
             // 0 + g: autograd adds into a zeroed buffer.
@@ -341,9 +343,43 @@ fn add_rows_grad(
         }
     }
     // `0 + dy` is `dy` here, bit for bit: it is `0 + g` already.
-    let dr = row_sums(&dy, dims, shared);
+    let dr = match rows {
+        Rows::Frame => dy.clone(),
+        Rows::Shared => row_sums(&dy, dims, true),
+        Rows::Sequence => row_sums(&dy, dims, false),
+    };
     (dy, dr)
 }
+}
+
+/// Which rows [`add_rows`] adds: one for all, one per sequence, or one per
+/// frame.
+#[derive(Clone, Copy)]
+enum Rows {
+    Shared,
+    Sequence,
+    Frame,
+}
+
+impl Rows {
+    /// The layout of rows `r` (`[·, ·, n]`) for sequences of `t` frames.
+    fn of(r: &[usize], t: usize) -> Rows {
+        match r {
+            [1, 1, _] => Rows::Shared,
+            [_, rt, _] if *rt == t && t > 1 => Rows::Frame,
+            _ => Rows::Sequence,
+        }
+    }
+
+    /// Where the row for sequence `s`, frame `k` starts.
+    #[inline(always)]
+    fn at(self, s: usize, k: usize, t: usize, n: usize) -> usize {
+        match self {
+            Rows::Shared => 0,
+            Rows::Sequence => s * n,
+            Rows::Frame => (s * t + k) * n,
+        }
+    }
 }
 
 /// The gradient of rows added to every step (as [`add_rows`] adds them):

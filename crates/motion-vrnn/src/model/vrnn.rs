@@ -122,21 +122,8 @@ impl Bias {
 /// `x` plus the bias where there is one.
 pub(super) fn plus(x: Tensor, bias: Option<&Tensor>) -> Result<Tensor> {
     match bias {
-        Some(b) => add_bias(&x, b, Act::None),
+        Some(b) => add_rows(&x, b, Act::None),
         None => Ok(x),
-    }
-}
-
-/// `act(y + r)`: [`add_rows`] where `r` has one row per sequence, a plain
-/// sum where it has one per frame ([`Parts::control`]).
-pub(super) fn add_bias(y: &Tensor, r: &Tensor, act: Act) -> Result<Tensor> {
-    if r.rank() < 3 || r.dim(1)? == 1 {
-        return add_rows(y, r, act);
-    }
-    let s = (y + r)?;
-    match act {
-        Act::None => Ok(s),
-        Act::Relu => s.relu(),
     }
 }
 
@@ -405,7 +392,7 @@ impl Vrnn {
     pub(super) fn decode_raw(&self, z: &Tensor, h: &Tensor, bias: Option<&Bias>) -> Result<Tensor> {
         let u = Tensor::cat(&[z, h], D::Minus1)?;
         let a = match bias {
-            Some(b) => add_bias(
+            Some(b) => add_rows(
                 &self.decoder[0].forward(&u, Act::None)?,
                 &b.decoder,
                 Act::Relu,
