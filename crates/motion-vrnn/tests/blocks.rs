@@ -137,6 +137,7 @@ fn add_rows_block() {
     for (name, r) in [
         ("per sequence", randn(12, &[3, 1, 6], 0.5)),
         ("shared", randn(13, &[1, 1, 6], 0.5)),
+        ("per frame", randn(16, &[3, 5, 6], 0.5)),
     ] {
         check(name, &[y.clone(), r.clone()], &[0, 1], 1e-6, 6, |t| {
             blocks::add_rows(&t[0], &t[1], Act::None).unwrap()
@@ -166,12 +167,10 @@ fn add_rows_block() {
         assert_eq!(one().dims(), [3, 6]);
         assert_eq!(values(&one()), values(&blocks::reference(one)));
     }
-    assert!(blocks::add_rows(
-        y.as_tensor(),
-        &Tensor::zeros((2, 1, 6), candle_core::DType::F32, &Device::Cpu).unwrap(),
-        Act::None
-    )
-    .is_err());
+    for bad in [(2, 1, 6), (3, 4, 6), (3, 5, 5)] {
+        let r = Tensor::zeros(bad, candle_core::DType::F32, &Device::Cpu).unwrap();
+        assert!(blocks::add_rows(y.as_tensor(), &r, Act::None).is_err());
+    }
 }
 
 #[test]
@@ -556,4 +555,64 @@ fn a_patched_gradient_store_sums_the_same() {
     let grads = loss.backward().unwrap();
     assert_eq!(values(grads.get(p.as_tensor()).unwrap()), [3f32, 3.]);
     assert_eq!(values(grads.get(q.as_tensor()).unwrap()), [3f32, 3.]);
+}
+
+/// The vendored gradient store also keeps the gradients of `narrow`'s
+/// slices until their node is reached (`vendor/README.md`): slices that
+/// cover a tensor, slices with a gap, slices that overlap, and slices mixed
+/// with uses of the whole tensor, each summed as by hand.
+#[test]
+fn a_patched_gradient_store_joins_slices() {
+    let dev = &Device::Cpu;
+    let x = Var::from_vec((1..=10).map(|v| v as f32).collect(), (2, 5), dev).unwrap();
+    let xt = x.as_tensor();
+    let grad = |loss: Tensor| values(loss.backward().unwrap().get(xt).unwrap());
+    let part = |at: usize, n: usize, k: f64| {
+        (xt.narrow(1, at, n).unwrap() * k)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+    };
+    let sum = |ts: &[Tensor]| {
+        ts.iter()
+            .skip(1)
+            .fold(ts[0].clone(), |a, t| (a + t).unwrap())
+    };
+    // Three slices covering the columns: 2·x[:, 0..2] + 3·x[:, 2..3] + 5·x[:, 3..5].
+    let got = grad(sum(&[part(3, 2, 5.0), part(0, 2, 2.0), part(2, 1, 3.0)]));
+    assert_eq!(got, [2f32, 2., 3., 5., 5., 2., 2., 3., 5., 5.]);
+    // A gap: columns 1 and 4 get nothing.
+    let got = grad(sum(&[part(0, 1, 2.0), part(2, 2, 3.0)]));
+    assert_eq!(got, [2f32, 0., 3., 3., 0., 2., 0., 3., 3., 0.]);
+    // Overlapping slices add up.
+    let got = grad(sum(&[part(0, 3, 2.0), part(2, 3, 3.0)]));
+    assert_eq!(got, [2f32, 2., 5., 3., 3., 2., 2., 5., 3., 3.]);
+    // The whole tensor and a slice: x·x summed gives 2x, plus 7 on column 1.
+    let whole = xt.sqr().unwrap().sum_all().unwrap();
+    let got = grad(sum(&[whole, part(1, 1, 7.0)]));
+    let want: Vec<f32> = (1..=10)
+        .map(|v| 2.0 * v as f32 + if v % 5 == 2 { 7.0 } else { 0.0 })
+        .collect();
+    assert_eq!(got, want);
+    // Slices along the rows.
+    let rows = sum(&[
+        (xt.narrow(0, 1, 1).unwrap() * 4.0)
+            .unwrap()
+            .sum_all()
+            .unwrap(),
+        (xt.narrow(0, 0, 1).unwrap() * 6.0)
+            .unwrap()
+            .sum_all()
+            .unwrap(),
+    ]);
+    assert_eq!(grad(rows), [6f32, 6., 6., 6., 6., 4., 4., 4., 4., 4.]);
+    // One slice with zeros either side, stored contiguous.
+    let loss = (xt.narrow(1, 1, 2).unwrap() * 2.0)
+        .unwrap()
+        .sum_all()
+        .unwrap();
+    let grads = loss.backward().unwrap();
+    let g = grads.get(xt).unwrap();
+    assert!(g.is_contiguous());
+    assert_eq!(values(g), [0f32, 2., 2., 0., 0., 0., 2., 2., 0., 0.]);
 }

@@ -170,6 +170,7 @@ impl Tensor {
             if node.is_variable() {
                 continue;
             }
+            grads.resolve(node.id())?;
             let grad = grads
                 .remove(node)
                 .expect("candle internal error - grad not populated");
@@ -529,30 +530,8 @@ impl Tensor {
                         let grad = (grad / arg.sqr()?)?;
                         *sum_grad = sum_grad.sub(&grad)?
                     }
-                    &Op::Narrow(ref arg, dim, start_idx, len) => {
-                        let arg_dims = arg.dims();
-                        let left_pad = if start_idx == 0 {
-                            None
-                        } else {
-                            let mut dims = arg_dims.to_vec();
-                            dims[dim] = start_idx;
-                            Some(Tensor::zeros(dims, grad.dtype(), grad.device())?)
-                        };
-                        let right_pad = arg_dims[dim] - start_idx - len;
-                        let right_pad = if right_pad == 0 {
-                            None
-                        } else {
-                            let mut dims = arg_dims.to_vec();
-                            dims[dim] = right_pad;
-                            Some(Tensor::zeros(dims, grad.dtype(), grad.device())?)
-                        };
-                        let arg_grad = match (left_pad, right_pad) {
-                            (None, None) => grad,
-                            (Some(l), None) => Tensor::cat(&[&l, &grad], dim)?,
-                            (None, Some(r)) => Tensor::cat(&[&grad, &r], dim)?,
-                            (Some(l), Some(r)) => Tensor::cat(&[&l, &grad, &r], dim)?,
-                        };
-                        grads.accumulate(arg, &arg_grad)?;
+                    &Op::Narrow(ref arg, dim, start_idx, _) => {
+                        grads.accumulate_narrow(arg, dim, start_idx, grad)?;
                     }
                     Op::Unary(_, UnaryOp::Floor)
                     | Op::Unary(_, UnaryOp::Round)
@@ -667,13 +646,89 @@ impl Tensor {
                 };
             }
         }
+        let held: Vec<TensorId> = grads.1.keys().copied().collect();
+        for id in held {
+            grads.resolve(id)?;
+        }
         Ok(grads)
     }
 }
 
 /// A store for gradients, associating a tensor id to the corresponding gradient tensor, used for back propagation.
 #[derive(Default, Debug)]
-pub struct GradStore(HashMap<TensorId, Tensor>);
+pub struct GradStore(HashMap<TensorId, Tensor>, HashMap<TensorId, Held>);
+
+/// Gradients of a node held back until it is reached (patched in by
+/// motion-vrnn's workspace: see `vendor/README.md`): its shape, and each
+/// gradient in the order it came, the whole tensor's or that of a slice
+/// `start..` along `dim` (the backward of `narrow`).
+#[derive(Debug)]
+struct Held {
+    shape: Vec<usize>,
+    parts: Vec<(Option<(usize, usize)>, Tensor)>,
+}
+
+impl Held {
+    /// `grad` of the slice `start..` along `dim` padded with zeros to the
+    /// whole shape (upstream's backward of `narrow`).
+    fn padded(&self, dim: usize, start: usize, grad: &Tensor) -> Result<Tensor> {
+        let pad = |n: usize| {
+            let mut dims = self.shape.clone();
+            dims[dim] = n;
+            Tensor::zeros(dims, grad.dtype(), grad.device())
+        };
+        let end = start + grad.dim(dim)?;
+        let mut all = Vec::with_capacity(3);
+        if start > 0 {
+            all.push(pad(start)?);
+        }
+        all.push(grad.clone());
+        if end < self.shape[dim] {
+            all.push(pad(self.shape[dim] - end)?);
+        }
+        Tensor::cat(&all, dim)
+    }
+
+    /// Slices along one dimension that do not overlap, joined (zeros in
+    /// the gaps): each element has one term, so this is their sum. None
+    /// where a whole gradient or an overlap needs the sum.
+    fn joined(&self) -> Result<Option<Tensor>> {
+        let mut slices = Vec::with_capacity(self.parts.len());
+        for (at, g) in &self.parts {
+            match at {
+                Some((dim, start)) => slices.push((*dim, *start, g)),
+                None => return Ok(None),
+            }
+        }
+        let Some(&(dim, _, first)) = slices.first() else {
+            return Ok(None);
+        };
+        if slices.iter().any(|s| s.0 != dim) {
+            return Ok(None);
+        }
+        slices.sort_by_key(|s| s.1);
+        let mut all = Vec::with_capacity(2 * slices.len() + 1);
+        let mut at = 0;
+        for &(_, start, g) in &slices {
+            if start < at {
+                return Ok(None);
+            }
+            if start > at {
+                let mut dims = self.shape.clone();
+                dims[dim] = start - at;
+                all.push(Tensor::zeros(dims, first.dtype(), first.device())?);
+            }
+            all.push(g.clone());
+            at = start + g.dim(dim)?;
+        }
+        if at < self.shape[dim] {
+            let mut dims = self.shape.clone();
+            dims[dim] = self.shape[dim] - at;
+            all.push(Tensor::zeros(dims, first.dtype(), first.device())?);
+        }
+        Tensor::cat(&all, dim)?.contiguous().map(Some)
+    }
+}
 
 impl GradStore {
     /// Create a new gradient store
@@ -712,6 +767,10 @@ impl GradStore {
     /// zero-filled buffer and a pass over it per node. (Patched in by
     /// motion-vrnn's workspace: see `vendor/README.md`.)
     fn accumulate(&mut self, tensor: &Tensor, grad: &Tensor) -> Result<()> {
+        if let Some(held) = self.1.get_mut(&tensor.id()) {
+            held.parts.push((None, grad.clone()));
+            return Ok(());
+        }
         match self.0.entry(tensor.id()) {
             Entry::Occupied(mut entry) => {
                 let sum = entry.get().add(grad)?;
@@ -724,9 +783,66 @@ impl GradStore {
         Ok(())
     }
 
+    /// Adds `grad`, the gradient of `tensor.narrow(dim, start, ·)`, to
+    /// `tensor`'s: held until the node is reached ([`GradStore::resolve`])
+    /// instead of padded with zeros to the whole shape and added at once.
+    fn accumulate_narrow(
+        &mut self,
+        tensor: &Tensor,
+        dim: usize,
+        start: usize,
+        grad: Tensor,
+    ) -> Result<()> {
+        let id = tensor.id();
+        if !self.1.contains_key(&id) {
+            let mut parts = Vec::with_capacity(4);
+            if let Some(whole) = self.0.remove(&id) {
+                parts.push((None, whole));
+            }
+            let shape = tensor.dims().to_vec();
+            self.1.insert(id, Held { shape, parts });
+        }
+        if let Some(held) = self.1.get_mut(&id) {
+            held.parts.push((Some((dim, start)), grad));
+        }
+        Ok(())
+    }
+
+    /// Stores the gradient of node `id` from what is held for it: slices
+    /// joined where each element has one term ([`Held::joined`]), else each
+    /// part (zero-padded) added in the order it came, as upstream does.
+    fn resolve(&mut self, id: TensorId) -> Result<()> {
+        let Some(held) = self.1.remove(&id) else {
+            return Ok(());
+        };
+        let grad = match held.joined()? {
+            Some(g) => g,
+            None => {
+                let mut sum: Option<Tensor> = None;
+                for (at, g) in &held.parts {
+                    let g = match at {
+                        Some((dim, start)) => held.padded(*dim, *start, g)?,
+                        None => g.clone(),
+                    };
+                    sum = Some(match sum {
+                        Some(s) => s.add(&g)?,
+                        None => g.contiguous()?,
+                    });
+                }
+                match sum {
+                    Some(s) => s,
+                    None => return Ok(()),
+                }
+            }
+        };
+        self.0.insert(id, grad);
+        Ok(())
+    }
+
     /// Get the gradient tensor associated with the given tensor, or, if it does not exist,
     /// insert a tensor of zeroes, with the same shape and type as the given tensors and return it
     fn or_insert(&mut self, tensor: &Tensor) -> Result<&mut Tensor> {
+        self.resolve(tensor.id())?;
         let grad = match self.0.entry(tensor.id()) {
             Entry::Occupied(entry) => entry.into_mut(),
             Entry::Vacant(entry) => {
