@@ -670,7 +670,7 @@ struct Held {
 
 impl Held {
     /// `grad` of the slice `start..` along `dim` padded with zeros to the
-    /// whole shape (upstream's backward of `narrow`).
+    /// whole shape (upstream's backward of `narrow`), in storage of its own.
     fn padded(&self, dim: usize, start: usize, grad: &Tensor) -> Result<Tensor> {
         let pad = |n: usize| {
             let mut dims = self.shape.clone();
@@ -685,6 +685,9 @@ impl Held {
         all.push(grad.clone());
         if end < self.shape[dim] {
             all.push(pad(self.shape[dim] - end)?);
+        }
+        if all.len() == 1 {
+            return grad.copy();
         }
         Tensor::cat(&all, dim)
     }
@@ -810,7 +813,8 @@ impl GradStore {
 
     /// Stores the gradient of node `id` from what is held for it: slices
     /// joined where each element has one term ([`Held::joined`]), else each
-    /// part (zero-padded) added in the order it came, as upstream does.
+    /// part added in the order it came, a slice only where it lies (the
+    /// zeros upstream pads it with add nothing).
     fn resolve(&mut self, id: TensorId) -> Result<()> {
         let Some(held) = self.1.remove(&id) else {
             return Ok(());
@@ -818,15 +822,19 @@ impl GradStore {
         let grad = match held.joined()? {
             Some(g) => g,
             None => {
+                // In order; a slice is added where it lies, into a sum this
+                // store owns (`slice_set` writes in place).
                 let mut sum: Option<Tensor> = None;
                 for (at, g) in &held.parts {
-                    let g = match at {
-                        Some((dim, start)) => held.padded(*dim, *start, g)?,
-                        None => g.clone(),
-                    };
-                    sum = Some(match sum {
-                        Some(s) => s.add(&g)?,
-                        None => g.contiguous()?,
+                    sum = Some(match (sum, at) {
+                        (None, None) => g.copy()?,
+                        (None, Some((dim, start))) => held.padded(*dim, *start, g)?,
+                        (Some(s), None) => s.add(g)?,
+                        (Some(s), Some((dim, start))) => {
+                            let r = s.narrow(*dim, *start, g.dim(*dim)?)?.add(g)?;
+                            s.slice_set(&r.contiguous()?, *dim, *start)?;
+                            s
+                        }
                     });
                 }
                 match sum {

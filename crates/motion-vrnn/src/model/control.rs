@@ -78,34 +78,23 @@ impl Vrnn {
 
     /// The condition's rows `base` (`[B or 1, ·]`, one per sequence) plus
     /// the control's `ctl`: `[B, T, CONTROL]`, one row per frame, or one
-    /// step's `[B, CONTROL]`. Each part (posterior, gates, prior, decoder)
-    /// is its own [`control_rows`]: a slice of a per-frame tensor would cost
-    /// candle a zero-filled copy of the whole in the backward pass.
+    /// step's `[B, CONTROL]`. One [`control_rows`] makes every part; each
+    /// part is a slice of it ([`Bias::all`], which the rollout reads whole).
     pub(super) fn frame_bias(&self, base: &Tensor, ctl: &Tensor) -> Result<Bias> {
         let (Some(w), c) = (&self.control, &self.config) else {
             candle_core::bail!(
                 "this model was trained without the control; train one with the default model (`cargo xtask train`)"
             );
         };
-        let widths = [2 * c.latent, 4 * c.hidden, 2 * c.latent, c.decoder[0]];
-        let mut at = 0;
-        let mut parts = Vec::with_capacity(4);
-        for n in widths {
-            parts.push(control_rows(
-                ctl,
-                &w.narrow(1, at, n)?,
-                &base.narrow(1, at, n)?,
-            )?);
-            at += n;
-        }
-        let [enc, gates, prior, decoder]: [Tensor; 4] = parts
-            .try_into()
-            .map_err(|_| candle_core::Error::Msg("frame_bias: four parts".into()))?;
+        let all = control_rows(ctl, w, base)?;
+        let (z2, h4, d1) = (2 * c.latent, 4 * c.hidden, c.decoder[0]);
+        let part = |at: usize, n: usize| all.narrow(D::Minus1, at, n);
         Ok(Bias {
-            pre: Tensor::cat(&[&enc, &gates], D::Minus1)?,
-            prior,
-            decoder,
-            parts: Some([enc, gates]),
+            pre: part(0, z2 + h4)?,
+            prior: part(z2 + h4, z2)?,
+            decoder: part(2 * z2 + h4, d1)?,
+            parts: Some([part(0, z2)?, part(z2, h4)?]),
+            all: Some(all),
         })
     }
 }

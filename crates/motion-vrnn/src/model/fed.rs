@@ -210,12 +210,9 @@ impl Vrnn {
             Some(bias) => {
                 let parts = [&bias.pre, &bias.prior, &bias.decoder];
                 let widths = parts.map(|p| p.dim(D::Minus1).unwrap_or(0));
-                // Rows per frame: from the parts `pre` was made of, so the
-                // backward cuts the gradient once.
-                let cond = match &bias.parts {
-                    Some([enc, gates]) => {
-                        Tensor::cat(&[enc, gates, &bias.prior, &bias.decoder], D::Minus1)?
-                    }
+                // Rows per frame: the tensor the parts are slices of.
+                let cond = match &bias.all {
+                    Some(all) => all.clone(),
                     None => Tensor::cat(&parts, D::Minus1)?,
                 };
                 (cond, Some(widths))

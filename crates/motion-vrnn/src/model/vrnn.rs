@@ -66,9 +66,12 @@ pub(super) struct Bias {
     pub(super) prior: Tensor,
     /// The decoder's first layer, before its ReLU.
     pub(super) decoder: Tensor,
-    /// With rows per frame, `pre`'s two parts as they were made (posterior,
-    /// gates), so the recurrence adds each without slicing `pre`.
+    /// With rows per frame, `pre`'s two parts (posterior, gates), so the
+    /// recurrence adds each without slicing `pre`.
     pub(super) parts: Option<[Tensor; 2]>,
+    /// With rows per frame, every part as it was made, one `[B, T, pre |
+    /// prior | decoder]` tensor the other fields are slices of.
+    pub(super) all: Option<Tensor>,
 }
 
 impl Bias {
@@ -82,6 +85,7 @@ impl Bias {
                 .parts
                 .as_ref()
                 .map(|p| p.each_ref().map(Tensor::detach)),
+            all: self.all.as_ref().map(Tensor::detach),
         }
     }
 
@@ -96,6 +100,7 @@ impl Bias {
             prior: self.prior.unsqueeze(1)?,
             decoder: self.decoder.unsqueeze(1)?,
             parts: None,
+            all: None,
         })
     }
 
@@ -115,6 +120,7 @@ impl Bias {
             prior: row(&self.prior)?,
             decoder: row(&self.decoder)?,
             parts: None,
+            all: None,
         })
     }
 }
@@ -285,6 +291,7 @@ impl Vrnn {
             prior: e.narrow(1, pre, prior)?,
             decoder: e.narrow(1, pre + prior, c.decoder[0])?,
             parts: None,
+            all: None,
         })
     }
 
