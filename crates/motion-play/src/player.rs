@@ -38,12 +38,12 @@ pub struct Frame {
 /// made in runs of [`PACE_EVERY`] frames, each run a fresh recurrence after
 /// the last [`PACE_FRAMES`] frames made.
 pub struct Player {
-    model: &'static Vrnn,
+    model: Vrnn,
     header: Header,
     seed: u64,
     category: usize,
     cond: Option<Tensor>,
-    gen: Generator<'static>,
+    gen: Generator,
     run: u64,
     eps: Tensor,
     /// The last [`PACE_FRAMES`] frames made, normalised.
@@ -56,13 +56,12 @@ pub struct Player {
 
 impl Player {
     /// A player of the bundle's model, starting from its first context; the
-    /// same bundle, seed and keys make the same frames. The model lives as
-    /// long as the program (a page holds one player).
+    /// same bundle, seed and keys make the same frames.
     pub fn new(bytes: &[u8], seed: u64) -> Result<Player, PlayError> {
         let Bundle { header, weights } = Bundle::from_bytes(bytes)?;
         let dev = Device::Cpu;
         let vb = VarBuilder::from_buffered_safetensors(weights, DType::F32, &dev)?;
-        let model: &'static Vrnn = Box::leak(Box::new(Vrnn::new(&header.config, vb)?));
+        let model = Vrnn::new(&header.config, vb)?;
         if !header.config.parts.control {
             return Err(PlayError::Invalid(
                 "this model was trained without the control, so it cannot be steered; train the default model (`cargo xtask train`)".into(),

@@ -1168,6 +1168,32 @@ fn generated_motion_never_reads_past_its_context() {
     }
 }
 
+/// Sampling from a model over training variables records no graph (a long
+/// motion would otherwise hold every step's tensors) and makes the same
+/// frames, bit for bit, as the same weights loaded as plain tensors.
+#[test]
+fn sampling_keeps_no_graph_and_makes_the_same_frames() {
+    use candle_nn::VarBuilder;
+    for (name, _) in MODELS {
+        let m = model(name, 3);
+        let (x, e) = batch(5, 6, 5);
+        let tracked = m.model.losses(&x, &e, None, None).unwrap();
+        assert!(tracked.recon.track_op(), "{name}: training records a graph");
+        let eps = noise(1, 2, 12, 5, 8, &Device::Cpu).unwrap();
+        let start = x.narrow(1, 0, 4).unwrap();
+        let s = m.model.sample(&eps, Some(&start), None).unwrap();
+        assert!(!s.track_op(), "{name}: sampling recorded a graph");
+        let plain: std::collections::HashMap<String, Tensor> = sorted_vars(&m)
+            .into_iter()
+            .map(|(k, v)| (k, v.as_detached_tensor()))
+            .collect();
+        let vb = VarBuilder::from_tensors(plain, candle_core::DType::F32, &Device::Cpu);
+        let frozen = motion_vrnn::Vrnn::new(m.model.config(), vb).unwrap();
+        let f = frozen.sample(&eps, Some(&start), None).unwrap();
+        assert_eq!(flat(&s), flat(&f), "{name}: other frames");
+    }
+}
+
 /// The gradient through the rollout runs as one fused block with its own
 /// backward (`blocks::rollout::RolloutOp`): the losses and every gradient
 /// equal candle's autograd through the step loop it replaces

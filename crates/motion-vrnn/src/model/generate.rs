@@ -6,8 +6,10 @@ use super::*;
 /// Generation between two frames ([`Vrnn::generator`]): the recurrence's
 /// state, the filters' last values, the seam and the last frame made. Each
 /// [`Generator::next`] makes one frame per sequence and feeds it back.
-pub struct Generator<'m> {
-    m: &'m Vrnn,
+/// It holds the model's weights detached from the graph: what it
+/// makes keeps no graph, so a long motion holds only its state.
+pub struct Generator {
+    m: Vrnn,
     steps: Steps,
     /// The real start frames `[B, K, input]` (features only), if any.
     start: Option<Tensor>,
@@ -36,7 +38,7 @@ impl Vrnn {
         start: Option<&Tensor>,
         cond: Option<&Tensor>,
         batch: usize,
-    ) -> Result<Generator<'_>> {
+    ) -> Result<Generator> {
         let dev = self.w_hh.device();
         let start = start
             .map(|s| self.split_control(s))
@@ -52,9 +54,10 @@ impl Vrnn {
             _ => self.mean_bones(batch, dev)?,
         };
         let h = Tensor::zeros((batch, self.config.hidden), DType::F32, dev)?;
+        let m = self.detached();
         let mut g = Generator {
-            m: self,
-            steps: Steps::new(self)?,
+            steps: Steps::new(&m)?,
+            m,
             start,
             rows: None,
             bias: None,
@@ -91,7 +94,7 @@ impl Vrnn {
     }
 }
 
-impl Generator<'_> {
+impl Generator {
     /// The index of the next frame (the start frames count).
     pub fn step(&self) -> usize {
         self.step
@@ -114,7 +117,7 @@ impl Generator<'_> {
     /// and the control `ctl: [B, CONTROL]` asked for it (None: left free):
     /// a start frame while there are any, then a frame drawn from the prior.
     pub fn next(&mut self, e: &Tensor, ctl: Option<&Tensor>) -> Result<Tensor> {
-        let (m, c, step) = (self.m, &self.m.config, self.step);
+        let (m, c, step) = (&self.m, &self.m.config, self.step);
         let k = self.start.as_ref().map_or(Ok(0), |s| s.dim(1))?;
         let asked = ctl
             .map(|ctl| m.step_bias(self.rows.as_ref(), ctl))
