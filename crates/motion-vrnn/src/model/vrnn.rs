@@ -297,7 +297,8 @@ impl Vrnn {
 
     /// The same model with every weight detached from the graph: what runs
     /// through it keeps no graph and no buffers for a backward pass (the
-    /// feed rounds, whose output no gradient flows through).
+    /// feed rounds, whose output no gradient flows through, and every
+    /// [`Generator`]).
     pub(super) fn detached(&self) -> Vrnn {
         let lin = |l: &Lin| Lin {
             w: l.w.detach(),
