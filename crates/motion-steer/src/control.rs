@@ -78,6 +78,37 @@ pub fn control_of_motion(root: &[[f64; 3]]) -> Vec<[f32; CONTROL]> {
         .collect()
 }
 
+/// The root motion a control row asks for: the mean of each frame's
+/// `(vel_x, vel_z, ang_vel_y)` (dataset units and radians a frame) over the
+/// frames to its farthest target, were the root to walk there at a steady
+/// speed and turn. The turn is the target's facing spread evenly over those
+/// frames; the velocity is the chord to the target seen along the facing
+/// halfway through the turn, lengthened to the arc it subtends. None for a
+/// row left free.
+pub fn asked_root_motion(row: &[f32; CONTROL]) -> Option<[f64; 3]> {
+    if row[CONTROL - 1] == 0.0 {
+        return None;
+    }
+    let i = 4 * (CONTROL_FRAMES.len() - 1);
+    let frames = CONTROL_FRAMES[CONTROL_FRAMES.len() - 1] as f64;
+    let [px, pz, fx, fz] = [row[i], row[i + 1], row[i + 2], row[i + 3]].map(f64::from);
+    // Positive turns right: a facing turned by θ is (sin θ, cos θ) here.
+    let turn = fx.atan2(fz);
+    let half = turn / 2.0;
+    let (s, c) = (-half).sin_cos();
+    let arc = if half.abs() > 1e-9 {
+        half / half.sin()
+    } else {
+        1.0
+    };
+    let scale = arc / (frames * METRES_PER_UNIT);
+    Some([
+        (c * px + s * pz) * scale,
+        (c * pz - s * px) * scale,
+        turn / frames,
+    ])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -157,5 +188,31 @@ mod tests {
             // θ > 0 turns right: the walk bends towards +x.
             assert_eq!(rows[0][8] > 0.0, th > 0.0);
         }
+    }
+
+    /// A steady walk's rows ask for its own root motion: straight ahead,
+    /// exactly; on a circle, the arc through the polygon's corners, within
+    /// θ²/24 of its speed and half a corner to the side.
+    #[test]
+    fn a_row_asks_for_the_walk_it_was_read_from() {
+        let rows = control_of_motion(&walk(2.0, 0.0, 40));
+        let [vx, vz, th] = asked_root_motion(&rows[0]).unwrap();
+        assert!(vx.abs() < 1e-6 && (vz - 2.0).abs() < 1e-5 && th == 0.0);
+        for th in [0.05f64, -0.08] {
+            let v = 1.5;
+            let rows = control_of_motion(&walk(v, th, 80));
+            let [ax, az, at] = asked_root_motion(&rows[5]).unwrap();
+            assert!((at - th).abs() < 1e-6, "{at} {th}");
+            assert!((az - v).abs() < v * th * th / 8.0 + 1e-5, "{az} {v}");
+            assert!((ax + v * th / 2.0).abs() < 1e-3, "{ax}");
+        }
+        // Standing: the targets on the root, facing ahead.
+        let mut stand = [0f32; CONTROL];
+        for i in 0..CONTROL_FRAMES.len() {
+            stand[4 * i + 3] = 1.0;
+        }
+        stand[CONTROL - 1] = 1.0;
+        assert_eq!(asked_root_motion(&stand), Some([0.0, 0.0, 0.0]));
+        assert_eq!(asked_root_motion(&[0.0; CONTROL]), None);
     }
 }

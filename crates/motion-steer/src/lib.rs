@@ -20,7 +20,7 @@ pub mod measure;
 pub mod path;
 pub mod stick;
 
-pub use control::{control_of_motion, root_track};
+pub use control::{asked_root_motion, control_of_motion, root_track};
 pub use follow::Follower;
 pub use measure::{path_error, reach_seconds, turn_seconds};
 pub use path::{parse_path, Path, PathError};

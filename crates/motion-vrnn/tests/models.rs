@@ -962,6 +962,42 @@ fn asking_pace_weighs_the_pace_as_paced_does() {
 }
 
 #[test]
+fn a_given_control_asks_for_its_own_pace() {
+    use mocap_ingest::features::{ANG_VEL_Y, VEL_X, VEL_Z};
+    let mut c = conditioned("motion", true).model.config().clone();
+    (c.parts.pace, c.parts.control) = (true, true);
+    // Statistics: vel_z of mean 1 and std 2, the rest 0 and 1.
+    let (mut mean, mut std) = (vec![0f32; 58], vec![1f32; 58]);
+    (mean[VEL_Z], std[VEL_Z]) = (1.0, 2.0);
+    c.body = Some(motion_vrnn::model::Body {
+        mean,
+        std,
+        bones: vec![1.0; 18],
+        contact_height: 0.0,
+    });
+    // Row 1 at guidance 1.25, paced [1, 2, 3, 4] (× 1.25).
+    let cond = Tensor::new(
+        &[[-0.25f32, 1.25, 0.0, 0.0, 1.25, 2.5, 3.75, 5.0]; 2],
+        &Device::Cpu,
+    )
+    .unwrap();
+    // A straight walk of 2 units a frame: vel_z (2 − 1) / 2 = 0.5, × 1.25;
+    // vel_x and ang_vel_y 0; root_y kept. A free row keeps its pace.
+    let walk = motion_steer::control_of_motion(&[[0.0, 2.0, 0.0]; 40])[0];
+    let ctl = Tensor::new(&[walk, [0.0; motion_steer::CONTROL]], &Device::Cpu).unwrap();
+    let got = flat(&c.control_pace(&cond, &ctl).unwrap());
+    let want = [-0.25, 1.25, 0.0, 0.0, 1.25, 0.0, 0.625, 0.0];
+    for (g, w) in got[..8].iter().zip(want) {
+        assert!((g - w).abs() < 1e-5, "{got:?}");
+    }
+    assert_eq!(got[8..], flat(&cond)[8..]);
+    assert_eq!([VEL_X, VEL_Z, ANG_VEL_Y], [55, 56, 57]);
+    // Weights without their pace are left as they are.
+    let bare = cond.narrow(1, 0, 4).unwrap();
+    assert_eq!(flat(&c.control_pace(&bare, &ctl).unwrap()), flat(&bare));
+}
+
+#[test]
 fn motions_are_held_to_their_pace_run_by_run() {
     use motion_vrnn::data::Windows;
     use motion_vrnn::generate::{

@@ -108,6 +108,40 @@ impl Config {
         with_pace(&cond.narrow(1, 0, w)?, want)
     }
 
+    /// `cond` (paced, [`Config::paced`]) asking, in each row whose control
+    /// `ctl: [B, CONTROL]` is given, for the root motion that control asks
+    /// for (`motion_steer::asked_root_motion`) in place of the pace's
+    /// `vel_x`, `vel_z` and `ang_vel_y`, weighed as the pace is; its
+    /// `root_y`, and rows left free, as they are. Steering asks for the
+    /// pace it asks the path for, so the two never disagree.
+    pub fn control_pace(&self, cond: &Tensor, ctl: &Tensor) -> Result<Tensor> {
+        let w = self.categories.len() + 1;
+        let body = match &self.body {
+            Some(b) if self.parts.pace && cond.dim(1)? == w + self.pace_columns() => b,
+            _ => return Ok(cond.clone()),
+        };
+        let (mut rows, ctl) = (cond.to_vec2::<f32>()?, ctl.to_vec2::<f32>()?);
+        for (row, c) in rows.iter_mut().zip(&ctl) {
+            let Ok(c) = <&[f32; motion_steer::CONTROL]>::try_from(c.as_slice()) else {
+                candle_core::bail!(
+                    "a control row has {} values, not {}",
+                    c.len(),
+                    motion_steer::CONTROL
+                );
+            };
+            let Some(asked) = motion_steer::asked_root_motion(c) else {
+                continue;
+            };
+            let weight = 1.0 - row[0];
+            // PACE_FEATURES: root_y, then these three.
+            for (i, (k, v)) in [VEL_X, VEL_Z, ANG_VEL_Y].into_iter().zip(asked).enumerate() {
+                row[w + 1 + i] = weight * ((v as f32 - body.mean[k]) / body.std[k]);
+            }
+        }
+        let b = rows.len();
+        Tensor::from_vec(rows.concat(), (b, w + self.pace_columns()), cond.device())
+    }
+
     /// Condition weights `[B, categories + 1]` for sequences asking for
     /// `asked` (rows of [`Config::categories`], counted from 1; None: no
     /// category) at guidance scale `guidance`: a sequence asking for row

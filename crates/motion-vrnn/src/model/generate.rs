@@ -13,7 +13,9 @@ pub struct Generator {
     steps: Steps,
     /// The real start frames `[B, K, input]` (features only), if any.
     start: Option<Tensor>,
-    /// The condition's rows ([`Vrnn::rows`]) and their parts.
+    /// The condition, paced ([`Config::paced`]), its rows
+    /// ([`Vrnn::rows`]) and their parts.
+    cond: Option<Tensor>,
     rows: Option<Tensor>,
     bias: Option<Bias>,
     /// Bone lengths `[B, 18]` the frames are placed with.
@@ -59,6 +61,7 @@ impl Vrnn {
             steps: Steps::new(&m)?,
             m,
             start,
+            cond: None,
             rows: None,
             bias: None,
             bones,
@@ -104,7 +107,8 @@ impl Generator {
     /// [`Vrnn::generator`] takes it; its pace still read from the start
     /// frames).
     pub fn set_condition(&mut self, cond: Option<&Tensor>) -> Result<()> {
-        self.rows = self.m.rows(cond, self.start.as_ref())?;
+        self.cond = self.m.config.paced(cond, self.start.as_ref())?;
+        self.rows = self.m.rows(self.cond.as_ref(), None)?;
         self.bias = self
             .rows
             .as_ref()
@@ -119,9 +123,15 @@ impl Generator {
     pub fn next(&mut self, e: &Tensor, ctl: Option<&Tensor>) -> Result<Tensor> {
         let (m, c, step) = (&self.m, &self.m.config, self.step);
         let k = self.start.as_ref().map_or(Ok(0), |s| s.dim(1))?;
-        let asked = ctl
-            .map(|ctl| m.step_bias(self.rows.as_ref(), ctl))
-            .transpose()?;
+        // A given control asks for its own pace ([`Config::control_pace`]).
+        let asked = match (ctl, &self.cond) {
+            (Some(ctl), Some(cond)) => {
+                let rows = m.rows(Some(&c.control_pace(cond, ctl)?), None)?;
+                Some(m.step_bias(rows.as_ref(), ctl)?)
+            }
+            (Some(ctl), _) => Some(m.step_bias(self.rows.as_ref(), ctl)?),
+            (None, _) => None,
+        };
         let (st, bias) = (&self.steps, asked.as_ref().or(self.bias.as_ref()));
         let (rho, rho_out) = (c.parts.latent_filter, c.parts.output_filter);
         // A real start frame is read through the posterior; later frames
