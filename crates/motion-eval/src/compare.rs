@@ -610,8 +610,8 @@ pub fn page(a: &CompareOptions, table: &[(String, Vec<SeedRun>)]) -> Result<Stri
           the pace of the whole window, the protocol before 2026-12-05 ([experiments.md](experiments.md)); none \
           of them has been chosen again under this protocol yet. Under it: the pace trained on each window's first \
           16 frames, and the control (steering) beside it, on `val` (seed 0, the minute from training contexts); \
-          the follower's lead, on the steering measures from training contexts (seed 0); the pace asked while \
-          steering, on the same measures (3 seeds).\n\n";
+          the follower's lead and the pace asked while steering, on the steering measures from training \
+          contexts (3 seeds).\n\n";
     s += "Models (each explained, with a diagram of one time step, in [training.md](training.md)):\n\n";
     for (name, _) in table {
         let what = match name.as_str() {

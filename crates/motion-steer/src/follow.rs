@@ -11,9 +11,10 @@ pub const WINDOW_M: f64 = 1.5;
 /// Progress this close to the end (metres) has finished the path.
 pub const REACHED_M: f64 = 0.05;
 
-/// The most the targets move ahead of the root's progress when it is
-/// behind the path's schedule (metres).
-pub const LEAD_M: f64 = 0.5;
+/// The most the asked speed rises above the path's (m/s) when the root is
+/// behind the path's schedule: by as many metres a second as it is
+/// behind, up to this.
+pub const LEAD_M: f64 = 1.0;
 
 /// Progress this close to a wait's point (metres) starts the wait: wider
 /// than [`REACHED_M`], so a root that stops a little short is not left
@@ -75,7 +76,9 @@ impl Follower {
     /// The control row for the frame where the root is at `at`: called once
     /// per generated frame. Progress moves to the root's closest point up to
     /// [`WINDOW_M`] ahead; the target k frames ahead is the path's point
-    /// `speed·k/FPS` further on and its tangent there, in `at`'s axes. Targets
+    /// `speed·k/FPS` further on and its tangent there, in `at`'s axes (the
+    /// path's speed, plus how far progress is behind its schedule, in m/s,
+    /// up to [`LEAD_M`]). Targets
     /// stop at the end and at a pending wait's point; when progress comes
     /// within [`WAIT_REACHED_M`] of that point they stay there for the wait's seconds (one call = 1/FPS s)
     /// facing along the segment into it, then progress resumes.
@@ -109,12 +112,12 @@ impl Follower {
         let cap_facing = path.segment_tangent(stop.saturating_sub(1));
         let speed = path.speed_at(self.s);
         self.due = (self.due + path.speed_at(self.due) / FPS).min(cap);
-        // Behind the path's schedule, the targets move ahead by as much
-        // (at most LEAD_M), so a slow motion is asked to catch up.
-        let lead = (self.due - self.s).clamp(0.0, LEAD_M);
-        let base = self.s + lead;
+        // Behind the path's schedule, the speed asked rises by as many
+        // metres a second (at most LEAD_M), so a slow motion is asked to
+        // catch up as a faster walk would, its targets evenly spaced.
+        let speed = speed + (self.due - self.s).clamp(0.0, LEAD_M);
         row(at, |k| {
-            let s = base + speed * k as f64 / FPS;
+            let s = self.s + speed * k as f64 / FPS;
             if s >= cap {
                 (path.points()[stop], cap_facing)
             } else {

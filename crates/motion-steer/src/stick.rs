@@ -1,8 +1,14 @@
 //! The stick: keys held (turn, run, stop, go) turned into control rows,
 //! frame by frame, as a game pad steers a character.
 
-use crate::follow::{row, LEAD_M};
+use crate::follow::row;
 use crate::{Frame2, CONTROL, FPS};
+
+/// The most the targets move ahead of a root behind the asked speed
+/// (metres). The path follower asks a faster walk instead
+/// ([`crate::follow::LEAD_M`]); live, that kept the default walking after
+/// Space (`docs/experiments.md`).
+pub const LEAD_M: f64 = 0.5;
 
 /// How fast a held turn key turns the asked heading, degrees per second.
 pub const TURN_DEG_PER_S: f64 = 90.0;
@@ -95,7 +101,7 @@ impl Stick {
         };
         let (p, d, v) = (at.pos, self.heading, self.speed);
         // Behind the asked speed, the targets move ahead by as much (at
-        // most LEAD_M), as the path follower leads a slow root.
+        // most LEAD_M).
         let moved = self
             .last
             .map_or(v / FPS, |l| (p[0] - l[0]) * d[0] + (p[1] - l[1]) * d[1]);

@@ -3,6 +3,7 @@
 
 use crate::follow::LEAD_M;
 use crate::path::PathError;
+use crate::stick::LEAD_M as STICK_LEAD_M;
 use crate::*;
 
 fn near(a: f64, b: f64) -> bool {
@@ -208,35 +209,38 @@ fn a_wait_holds_the_targets_then_releases_them() {
         assert!(!f.done());
     }
     // Released: progress moves on to the stop, the targets ahead of it
-    // (and ahead of the schedule's one frame at 1 m/s, due since).
+    // (asked faster by the schedule's one frame at 1 m/s, due since).
     let row = f.control(&here);
     let t = targets(&row);
     let due = 1.0 / 30.0;
     for (i, d) in [1.0 / 3.0, 2.0 / 3.0, 1.0].iter().enumerate() {
-        let d = 0.2 + due + d;
+        let d = 0.2 + (1.0 + due) * d;
         assert!((t[i][1] as f64 - d).abs() < 1e-6, "{t:?}");
     }
     assert_eq!(f.progress(), 5.0);
 }
 
-/// A root that stands still behind the path's schedule is led: the targets
-/// move ahead by the distance it is behind, at most `LEAD_M`.
+/// A root that stands still behind the path's schedule is asked to catch
+/// up: the speed asked rises by the distance it is behind, per second, at
+/// most `LEAD_M`; the targets stay evenly spaced.
 #[test]
 fn a_root_behind_the_schedule_is_asked_to_catch_up() {
     let mut f = Follower::new(parse_path("line:10", 1.5).unwrap());
     let still = at([0.0, 0.0], [0.0, 1.0]);
-    // After 6 calls at 1.5 m/s, 0.3 m is due: the first target is 0.3 + 0.5.
+    // After 6 calls at 1.5 m/s, 0.3 m is due: 1.8 m/s, targets 0.6, 1.2, 1.8.
     for _ in 0..5 {
         f.control(&still);
     }
     let t = targets(&f.control(&still));
-    assert!((t[0][1] - 0.8).abs() < 1e-6, "{t:?}");
-    // Far behind, the lead stops at LEAD_M.
+    for (i, want) in [0.6, 1.2, 1.8].into_iter().enumerate() {
+        assert!((t[i][1] - want).abs() < 1e-6, "{t:?}");
+    }
+    // Far behind, the rise stops at LEAD_M.
     for _ in 0..60 {
         f.control(&still);
     }
     let t = targets(&f.control(&still));
-    assert!((t[0][1] as f64 - (LEAD_M + 0.5)).abs() < 1e-6, "{t:?}");
+    assert!((t[2][1] as f64 - (LEAD_M + 1.5)).abs() < 1e-6, "{t:?}");
 }
 
 #[test]
@@ -324,7 +328,7 @@ fn the_stick_turns_walks_runs_and_stops_as_the_keys_say() {
     assert!(near2(s.heading(), [1.0, 0.0]));
     // The root has not moved for 31 frames: it is led the most, LEAD_M.
     let r = s.control(&at, Keys::default());
-    assert!((r[8] as f64 - LEAD_M - 0.6).abs() < 1e-6 && (r[9] as f64).abs() < 1e-6);
+    assert!((r[8] as f64 - STICK_LEAD_M - 0.6).abs() < 1e-6 && (r[9] as f64).abs() < 1e-6);
     assert!((heading_deg([0.0, 1.0], s.heading()) - 90.0).abs() < 1e-6);
     // Run while held; stop stands (targets on the root, facing the
     // character's own way, not the heading asked before) until go.
