@@ -8,7 +8,7 @@
 //! With `MOCAP_PLAY_RUN` naming a run of the default `train`, the figure
 //! itself is checked: holding Up moves it forward (over 0.25 m), holding Left for 2 s
 //! turns it at least 60°, Space brings it to a stand within 2 s (under
-//! 0.2 m/s over the next half second).
+//! 0.15 m/s over the next half second).
 
 mod common;
 
