@@ -982,9 +982,13 @@ fn a_given_control_asks_for_its_own_pace() {
     )
     .unwrap();
     // A straight walk of 2 units a frame: vel_z (2 − 1) / 2 = 0.5, × 1.25;
-    // vel_x and ang_vel_y 0; root_y kept. A free row keeps its pace.
+    // vel_x and ang_vel_y 0; root_y kept. A free row keeps its pace, and so
+    // does a row asking to stand (0.05 units a frame: 0.085 m/s).
     let walk = motion_steer::control_of_motion(&[[0.0, 2.0, 0.0]; 40])[0];
-    let ctl = Tensor::new(&[walk, [0.0; motion_steer::CONTROL]], &Device::Cpu).unwrap();
+    let stand = motion_steer::control_of_motion(&[[0.0, 0.05, 0.0]; 40])[0];
+    let free = [0.0; motion_steer::CONTROL];
+    let cond = Tensor::cat(&[&cond, &cond.narrow(0, 0, 1).unwrap()], 0).unwrap();
+    let ctl = Tensor::new(&[walk, free, stand], &Device::Cpu).unwrap();
     let got = flat(&c.control_pace(&cond, &ctl).unwrap());
     let want = [-0.25, 1.25, 0.0, 0.0, 1.25, 0.0, 0.625, 0.0];
     for (g, w) in got[..8].iter().zip(want) {

@@ -17,6 +17,11 @@ pub const PACE_FRAMES: usize = 16;
 /// sampler, steering, live play).
 pub const PACE_EVERY: usize = 128;
 
+/// A control row asking the root for less speed than this (m/s), a stand,
+/// leaves the pace as it is ([`Config::control_pace`]): asked a pace of
+/// standing, the default walked on after a stop more often.
+pub const CONTROL_PACE_MIN_M_S: f64 = 0.1;
+
 /// The guidance scale generation asks a category at unless told otherwise
 /// (`--guidance`, [`Config::condition`]). Training, its
 /// validation loss and the judge read categories at 1.
@@ -109,11 +114,11 @@ impl Config {
     }
 
     /// `cond` (paced, [`Config::paced`]) asking, in each row whose control
-    /// `ctl: [B, CONTROL]` is given, for the root motion that control asks
-    /// for (`motion_steer::asked_root_motion`) in place of the pace's
+    /// `ctl: [B, CONTROL]` asks the root to move (at
+    /// [`CONTROL_PACE_MIN_M_S`] or more), for the root motion that control
+    /// asks for (`motion_steer::asked_root_motion`) in place of the pace's
     /// `vel_x`, `vel_z` and `ang_vel_y`, weighed as the pace is; its
-    /// `root_y`, and rows left free, as they are. Steering asks for the
-    /// pace it asks the path for, so the two never disagree.
+    /// `root_y`, rows left free and rows asking to stand, as they are.
     pub fn control_pace(&self, cond: &Tensor, ctl: &Tensor) -> Result<Tensor> {
         let w = self.categories.len() + 1;
         let body = match &self.body {
@@ -132,6 +137,11 @@ impl Config {
             let Some(asked) = motion_steer::asked_root_motion(c) else {
                 continue;
             };
+            let speed =
+                asked[0].hypot(asked[1]) * motion_steer::METRES_PER_UNIT * motion_steer::FPS;
+            if speed < CONTROL_PACE_MIN_M_S {
+                continue;
+            }
             let weight = 1.0 - row[0];
             // PACE_FEATURES: root_y, then these three.
             for (i, (k, v)) in [VEL_X, VEL_Z, ANG_VEL_Y].into_iter().zip(asked).enumerate() {

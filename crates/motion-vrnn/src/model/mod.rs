@@ -56,7 +56,9 @@ mod losses;
 mod step;
 mod vrnn;
 
-pub use condition::{pace, GUIDANCE, PACE_EVERY, PACE_FEATURES, PACE_FRAMES, ROOT_FEATURES};
+pub use condition::{
+    pace, CONTROL_PACE_MIN_M_S, GUIDANCE, PACE_EVERY, PACE_FEATURES, PACE_FRAMES, ROOT_FEATURES,
+};
 pub use config::{Body, Config, Parts};
 pub use control::{Control, CONTROL_WEIGHT};
 pub use fed::{fed_speed_loss, FED_SPEED_FLOOR};
