@@ -1235,12 +1235,15 @@ fn sampling_keeps_no_graph_and_makes_the_same_frames() {
 }
 
 /// The gradient through the rollout runs as one fused block with its own
-/// backward (`blocks::rollout::RolloutOp`): the losses and every gradient
-/// equal candle's autograd through the step loop it replaces
-/// (`Vrnn::fed_in_sequence`), with and without a condition, the skeleton,
+/// backward (`blocks::rollout::RolloutOp`): the losses and every gradient,
+/// with and without the gradient through the fed frames, equal candle's
+/// autograd through the step loop it replaces (`Vrnn::fed_in_sequence`)
+/// and the scan over its frames, with and without a condition, the skeleton,
 /// the filters and the foot lock on; so does the part of each gradient that
 /// flows through the fed frames alone (the gradient less the one without
-/// them), which is small beside the rest.
+/// them), which is small beside the rest: within 1e-3, since the block also
+/// gives the loss its recurrence, so the two totals it is the difference
+/// of are summed in different orders (a missing term is off by ~1).
 #[test]
 fn the_fused_gradient_through_the_rollout_matches_autograd() {
     for on in [false, true] {
@@ -1259,6 +1262,14 @@ fn the_fused_gradient_through_the_rollout_matches_autograd() {
         let fed = feed_mask(9, 1, 5, 9, 0.5, &Device::Cpu).unwrap();
         let cond = on.then(|| ask(&with, &[Some(1), Some(2), None, Some(3), Some(1)], 1.0));
         fused_matches_reference("rollout", &with, &x, &eps, fed.as_ref(), cond.as_ref());
+        fused_matches_reference(
+            "every depth",
+            &without,
+            &x,
+            &eps,
+            fed.as_ref(),
+            cond.as_ref(),
+        );
         let grads = |m: &Trained, reference: bool| -> Vec<Vec<f32>> {
             let run = || {
                 let l = m
@@ -1286,7 +1297,7 @@ fn the_fused_gradient_through_the_rollout_matches_autograd() {
         for ((n, _), (f, r)) in sorted_vars(&with).iter().zip(pf.iter().zip(&pr)) {
             let e = rel(f, r);
             assert!(
-                e < 1e-4,
+                e < 1e-3,
                 "condition {on}: {n}: the rollout's part off by {e:e}"
             );
         }

@@ -2,6 +2,7 @@
 //! model's own predictions, in rounds, step by step or in the fused
 //! rollout; and the fed speed loss.
 
+use super::vrnn::Scan;
 use super::*;
 
 /// What feeding back to every depth reads ([`Vrnn::fed_in_sequence`]): the
@@ -57,22 +58,24 @@ impl Vrnn {
     /// each later one ([`Parts::feed_rounds`]; with 0, to every depth in one
     /// pass: [`Vrnn::fed_in_sequence`]). Training calls it on detached
     /// weights, so no gradient flows through the replacement, but with
-    /// [`Parts::rollout_gradient`] on its own.
-    pub(super) fn fed_back(&self, i: &Feed) -> Result<Tensor> {
+    /// [`Parts::rollout_gradient`] on its own. With the recurrence that read
+    /// the fed frames where the pass gives it (the fused pass with its
+    /// gradient), so the loss need not run it again.
+    pub(super) fn fed_back(&self, i: &Feed) -> Result<(Tensor, Option<Scan>)> {
         if self.config.parts.rounds() == 0 {
             // A gradient through the rollout ([`Parts::rollout_gradient`])
             // takes the fused pass with its backward.
             return match (blocks::fused(i.x), self.config.parts.rollout_gradient) {
-                (true, false) => self.fed_fused(i),
-                (true, true) => self.fed_fused_grad(i),
-                (false, _) => self.fed_in_sequence(i),
+                (true, false) => Ok((self.fed_fused(i)?, None)),
+                (true, true) => self.fed_fused_grad(i).map(|(f, s)| (f, Some(s))),
+                (false, _) => Ok((self.fed_in_sequence(i)?, None)),
             };
         }
         let mut fed = self.feed_round(i, None)?.detach();
         for _ in 1..self.config.parts.rounds() {
             fed = self.feed_round(i, Some(&fed))?.detach();
         }
-        Ok(fed)
+        Ok((fed, None))
     }
 
     /// One round of feeding back: the recurrence reads `fed` (the real
@@ -244,8 +247,9 @@ impl Vrnn {
 
     /// [`Vrnn::fed_fused`] with the gradient through the fed frames
     /// ([`rollout::RolloutOp`]): of the real frames' features, every weight
-    /// and the condition's rows.
-    pub(super) fn fed_fused_grad(&self, i: &Feed) -> Result<Tensor> {
+    /// and the condition's rows; and the recurrence that read them, as
+    /// [`Vrnn::scan`] of the fed frames gives it.
+    pub(super) fn fed_fused_grad(&self, i: &Feed) -> Result<(Tensor, Scan)> {
         let flat = |l: &Lin| -> Result<[Tensor; 2]> { Ok([l.w.flatten_all()?, l.b.clone()]) };
         let mut w = Vec::new();
         for l in [
@@ -266,7 +270,16 @@ impl Vrnn {
         ]);
         let w = Tensor::cat(&w, 0)?;
         let (op, cond) = self.rollout_op(i)?;
-        i.feat.contiguous()?.apply_op3(&w, &cond, op)
+        let out = i.feat.contiguous()?.apply_op3(&w, &cond, op)?;
+        let c = &self.config;
+        let (f, h, z) = (c.input, c.hidden, c.latent);
+        let part = |from: usize, n: usize| out.narrow(D::Minus1, from, n);
+        let scan = Scan {
+            h: part(f, h)?,
+            q: part(f + h, 2 * z)?,
+            z: part(f + h + 2 * z, z)?,
+        };
+        Ok((part(0, f)?, scan))
     }
 }
 

@@ -32,7 +32,7 @@ impl MotionModel for Vrnn {
             .map(|b| b.over_time())
             .transpose()?;
         let bias = bias.as_ref();
-        let fed = match feed {
+        let (fed, scan) = match feed {
             Some(mask) => {
                 // The prior's draws at the sampling temperature where asked;
                 // the posterior's noise as is.
@@ -46,20 +46,27 @@ impl MotionModel for Vrnn {
                     lengths: lengths.as_ref(),
                     bias,
                 };
-                if self.config.parts.rollout_gradient {
-                    Some(self.fed_back(&i)?)
+                let (fed, scan) = if self.config.parts.rollout_gradient {
+                    self.fed_back(&i)?
                 } else {
                     let (b, detached) = (bias.map(Bias::detached), feat.detach());
-                    Some(self.detached().fed_back(&Feed {
+                    let fed = self.detached().fed_back(&Feed {
                         feat: &detached,
                         bias: b.as_ref(),
                         ..i
-                    })?)
-                }
+                    })?;
+                    (fed.0, None)
+                };
+                (Some(fed), scan)
             }
-            None => None,
+            None => (None, None),
         };
-        let s = self.scan(&feat, fed.as_ref(), &eps, bias)?;
+        // The recurrence that read the fed frames: the fused rollout's own
+        // where it gives it, else run here.
+        let s = match scan {
+            Some(s) => s,
+            None => self.scan(&feat, fed.as_ref(), &eps, bias)?,
+        };
         let p = stacked(&self.prior[0], &self.prior[1])?.forward(&s.h, Act::None)?;
         let p = plus(p, bias.map(|b| &b.prior))?;
         let kl = gaussian_kl(&s.q, &p)?;

@@ -98,6 +98,9 @@ struct Dims {
     g_in: f32,
     g_out: f32,
     bones: usize,
+    /// Width of a row of the op's output and its gradient
+    /// ([`RolloutOp::width`]).
+    ow: usize,
 }
 
 /// What [`fed_backward`] reads and carries from step to step.
@@ -105,6 +108,7 @@ struct Back<'a> {
     net: &'a Net,
     sh: &'a Shard<'a>,
     tape: &'a Tape,
+    /// The op's output and its gradient, rows [`Dims::ow`] wide.
     fed: &'a [f32],
     dout: &'a [f32],
     dims: Dims,
@@ -170,6 +174,7 @@ impl<'a> Back<'a> {
         let gain = |rho: f32| (1.0 - rho * rho).max(0.0).sqrt();
         let (g_in, g_out) = (gain(net.rho), gain(net.rho_out));
         let bones = crate::blocks::skeleton::BONES;
+        let ow = f + h + 3 * z;
         let gr = Grads {
             feat: vec![0.0; b * tt * e2],
             phi: [DenseGrad::of(&net.phi[0]), DenseGrad::of(&net.phi[1])],
@@ -210,6 +215,7 @@ impl<'a> Back<'a> {
                 g_in,
                 g_out,
                 bones,
+                ow,
             },
             gr,
             dh: vec![0.0f32; b * h],
@@ -257,10 +263,13 @@ impl<'a> Back<'a> {
         let Dims {
             h,
             z,
+            f,
             b,
+            tt,
             e2,
             z2,
             h4,
+            ow,
             ..
         } = self.dims;
         let step = |t: usize, w: usize| t * b * w..(t + 1) * b * w;
@@ -268,6 +277,7 @@ impl<'a> Back<'a> {
         let Back {
             sh,
             tape,
+            dout,
             gr,
             gates_x,
             gates_z,
@@ -310,6 +320,11 @@ impl<'a> Back<'a> {
         // fed frame's own, or the real one's).
         let dg = &dgs[step(t, h4)];
         gates_z.rows(b, &mut dzq[step(t, z)], rm(0, z), false, dg);
+        // And what the loss gives `z_t`.
+        for s in 0..b {
+            let at = (s * tt + t) * ow + f + h + z2;
+            add(&mut dzq[(r0 + s) * z..(r0 + s + 1) * z], &dout[at..at + z]);
+        }
         if t > 0 {
             gates_h.rows(b, dhp, rm(0, h), true, dg);
         }
@@ -321,7 +336,13 @@ impl<'a> Back<'a> {
     #[inline(always)]
     fn inputs(&mut self, t: usize) {
         let Dims {
-            f, b, tt, e1, e2, ..
+            f,
+            b,
+            tt,
+            e1,
+            e2,
+            ow,
+            ..
         } = self.dims;
         let step = |t: usize, w: usize| t * b * w..(t + 1) * b * w;
         let r0 = t * b;
@@ -352,7 +373,7 @@ impl<'a> Back<'a> {
                 g2.copy_from_slice(g);
                 relu_back(g2, q2);
                 add(&mut gr.phi[1].b, g2);
-                xf[r * f..(r + 1) * f].copy_from_slice(&fed[q * f..(q + 1) * f]);
+                xf[r * f..(r + 1) * f].copy_from_slice(&fed[q * ow..q * ow + f]);
             } else {
                 xin[r * e2..(r + 1) * e2].copy_from_slice(ft);
                 add(&mut gr.feat[q * e2..(q + 1) * e2], g);
@@ -388,6 +409,7 @@ impl<'a> Back<'a> {
             width,
             g_out,
             bones,
+            ow,
             ..
         } = self.dims;
         let r0 = t * b;
@@ -411,7 +433,7 @@ impl<'a> Back<'a> {
             // The fed frame x + m (own − x) → the own frame, plus what the
             // next step's lock gave it.
             for k in 0..f {
-                down[k] = m * (dout[q * f + k] + dxs[s * f + k]) + cprev[s * f + k];
+                down[k] = m * (dout[q * ow + k] + dxs[s * f + k]) + cprev[s * f + k];
             }
             let mut dlog = [0.0f32; 2];
             if let Some(lock) = &net.lock {
@@ -500,12 +522,14 @@ impl<'a> Back<'a> {
         let Dims {
             h,
             z,
+            f,
             b,
             tt,
             e2,
             z2,
             zh,
             g_in,
+            ow,
             ..
         } = self.dims;
         let step = |t: usize, w: usize| t * b * w..(t + 1) * b * w;
@@ -514,6 +538,7 @@ impl<'a> Back<'a> {
             net,
             sh,
             tape,
+            dout,
             gr,
             prior,
             enc_x,
@@ -533,6 +558,9 @@ impl<'a> Back<'a> {
             let (r, q) = (r0 + s, s * tt + t);
             let du = &dus[s * zh..(s + 1) * zh];
             add(&mut dhp[s * h..(s + 1) * h], &du[z..]);
+            // What the loss gives `h_{t−1}`, `μ_t`, `σ_t`.
+            let dl = &dout[q * ow + f..q * ow + f + h + z2];
+            add(&mut dhp[s * h..(s + 1) * h], &dl[..h]);
             // The latent filter, then the prior's draw (its noise alone at
             // the first step).
             let filt = t > 0 && net.rho > 0.0;
@@ -558,8 +586,8 @@ impl<'a> Back<'a> {
             let de = &mut des[r * z2..(r + 1) * z2];
             for j in 0..z {
                 let dz = dzq[r * z + j];
-                de[j] = dz;
-                de[z + j] = dz * sh.eps[q * z + j] * dsigma(tape.sq[r * z + j]);
+                de[j] = dz + dl[h + j];
+                de[z + j] = (dz * sh.eps[q * z + j] + dl[h + z + j]) * dsigma(tape.sq[r * z + j]);
             }
             let de = &des[r * z2..(r + 1) * z2];
             add(&mut gr.encoder.b, de);
@@ -653,10 +681,11 @@ impl<'a> Back<'a> {
 }
 
 simd_fn! {
-/// The backward of [`pass`]: the gradients of everything the fed frames
-/// `fed` (its output) were made of, given theirs (`dout`, `[B, T, input]`),
-/// through every step of the recurrence, the prior's draws, the decoder,
-/// the filters, the skeleton and the foot lock (module docs).
+/// The backward of [`RolloutOp`]: the gradients of everything its output
+/// `fed` (each fed frame and the recurrence's `h | μ | σ | z`,
+/// [`RolloutOp::width`] wide) was made of, given theirs (`dout`, laid out
+/// alike), through every step of the recurrence, the prior's draws, the
+/// decoder, the filters, the skeleton and the foot lock (module docs).
 pub fn fed_backward(net: &Net, sh: &Shard, tape: &Tape, fed: &[f32], dout: &[f32]) -> Grads {
     let mut k = Back::new(net, sh, tape, fed, dout);
     for t in (0..sh.t).rev() {

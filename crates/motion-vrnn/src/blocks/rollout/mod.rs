@@ -4,7 +4,9 @@
 //! fed-back frames, the default); [`RolloutOp`] keeps a tape ([`pass`]) and
 //! has its own backward ([`fed_backward`]: back through every step, the
 //! gradients of the real frames' features, every weight and the
-//! condition's rows), for `Parts::rollout_gradient`.
+//! condition's rows), for `Parts::rollout_gradient`. The op also gives the
+//! recurrence that read the fed frames, what the loss reads, so it runs
+//! once.
 //!
 //! Per step `t`, with `h`, `c` the LSTM state before it:
 //!
@@ -243,7 +245,8 @@ pub struct Tape {
     /// The state `h`, `c` before the step.
     h: Vec<f32>,
     c: Vec<f32>,
-    /// `σ` of the posterior and of the prior.
+    /// `μ` of the posterior; `σ` of the posterior and of the prior.
+    mu: Vec<f32>,
     sq: Vec<f32>,
     sp: Vec<f32>,
     /// The posterior's draw, and the own frame's latent (filtered).
@@ -271,6 +274,7 @@ impl Tape {
         Tape {
             h: sized(h),
             c: sized(h),
+            mu: sized(z),
             sq: sized(z),
             sp: sized(z),
             zq: sized(z),
@@ -554,6 +558,7 @@ impl<'a> Fwd<'a> {
             k.zf[zw.clone()].copy_from_slice(zf);
             for s in 0..b {
                 for j in 0..z {
+                    k.mu[t * b * z + s * z + j] = e[s * z2 + j];
                     k.sq[t * b * z + s * z + j] = sigma(e[s * z2 + z + j]);
                     k.sp[t * b * z + s * z + j] =
                         if t > 0 { sigma(p[s * z2 + z + j]) } else { 0.0 };
@@ -776,6 +781,12 @@ impl Grads {
 /// values `net` holds; the condition's rows `[n, 1, pre | prior | decoder]`
 /// (`n` = 1 or `B`) or `[B, T, ·]` (a model with the control; anything,
 /// unused, without a condition).
+///
+/// Output `[B, T, input + H + 3Z]`: each fed frame, then what
+/// [`latent_lstm`](super::latent_lstm) gives of the recurrence that read
+/// them, `[h_{t−1} | μ_t | σ_t | z_t]` (the state before the step and the
+/// posterior), so the loss reads the rollout's own recurrence instead of
+/// running it again; the backward takes the gradients of both.
 pub struct RolloutOp {
     pub net: Net,
     pub b: usize,
@@ -796,6 +807,35 @@ impl RolloutOp {
     pub fn fed(&self, feat: &[f32], cond: &[f32]) -> Vec<f32> {
         let _time = crate::blocks::timing::span("rollout, no gradient", false);
         fed(&self.net, &self.shard(feat, cond))
+    }
+
+    /// Width of an output row: the frame, then `h | μ | σ | z`.
+    pub fn width(&self) -> usize {
+        self.net.input + self.net.hidden + 3 * self.net.latent
+    }
+
+    /// The op's output rows (`[B, T, width]`) from the fed frames of
+    /// [`pass`] and its tape.
+    fn rows(&self, fed: &[f32], tape: &Tape) -> Vec<f32> {
+        let (f, h, z, w) = (
+            self.net.input,
+            self.net.hidden,
+            self.net.latent,
+            self.width(),
+        );
+        let mut out = vec![0.0f32; self.b * self.t * w];
+        for (q, row) in out.chunks_exact_mut(w).enumerate() {
+            let r = (q % self.t) * self.b + q / self.t;
+            let (frame, rest) = row.split_at_mut(f);
+            frame.copy_from_slice(&fed[q * f..(q + 1) * f]);
+            let (hr, rest) = rest.split_at_mut(h);
+            hr.copy_from_slice(&tape.h[r * h..(r + 1) * h]);
+            for (k, part) in rest.chunks_exact_mut(z).enumerate() {
+                let from = [&tape.mu, &tape.sq, &tape.zq][k];
+                part.copy_from_slice(&from[r * z..(r + 1) * z]);
+            }
+        }
+        out
     }
 
     fn shard<'a>(&'a self, feat: &'a [f32], cond: &'a [f32]) -> Shard<'a> {
@@ -831,9 +871,10 @@ impl candle_core::CustomOp3 for RolloutOp {
         let feat = super::slice(s1, l1, "feat")?;
         let cond = super::slice(s3, l3, "cond")?;
         let mut tape = Tape::default();
-        let out = pass(&self.net, &self.shard(feat, cond), Some(&mut tape));
+        let fed = pass(&self.net, &self.shard(feat, cond), Some(&mut tape));
+        let out = self.rows(&fed, &tape);
         *self.tape.lock().unwrap_or_else(|p| p.into_inner()) = Some(tape);
-        let shape = candle_core::Shape::from((self.b, self.t, self.net.input));
+        let shape = candle_core::Shape::from((self.b, self.t, self.width()));
         Ok((candle_core::CpuStorage::F32(out), shape))
     }
 
