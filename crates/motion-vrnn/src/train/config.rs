@@ -116,7 +116,7 @@ pub const CONDITION_DROPOUT: f64 = 0.1;
 /// ([`crate::model::Parts::control`]), drawn apart from the category's
 /// dropout, so the model learns both to follow a path and to choose its
 /// own way.
-pub const CONTROL_DROPOUT: f64 = 0.3;
+pub const CONTROL_DROPOUT: f64 = 0.1;
 
 /// How training chooses its `best` checkpoint.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
