@@ -10,6 +10,10 @@ use crate::{Frame2, CONTROL, FPS};
 /// Space (`docs/experiments.md`).
 pub const LEAD_M: f64 = 0.5;
 
+/// Frames a stop lets the character settle, the targets on the root
+/// itself, before they stay where it settled ([`Stick::control`]).
+pub const SETTLE_FRAMES: usize = 30;
+
 /// How fast a held turn key turns the asked heading, degrees per second.
 pub const TURN_DEG_PER_S: f64 = 90.0;
 
@@ -42,6 +46,9 @@ pub struct Stick {
     /// How far the root is behind the asked speed along the heading
     /// (metres, at most [`LEAD_M`]).
     behind: f64,
+    /// Frames since the stop, and where the root was when it had settled.
+    stopped: usize,
+    anchor: Option<[f64; 2]>,
 }
 
 impl Stick {
@@ -55,6 +62,8 @@ impl Stick {
             speed: walk,
             last: None,
             behind: 0.0,
+            stopped: 0,
+            anchor: None,
         }
     }
 
@@ -70,10 +79,11 @@ impl Stick {
 
     /// The control row for the frame where the root is at `at`, after the
     /// keys held there: the targets k frames ahead lie on the straight line
-    /// from the root along the asked heading at the asked speed (on the root
-    /// itself when stopped), facing the asked heading (on stopping, the
-    /// character's own facing); a root slower than asked is led up to
-    /// [`LEAD_M`] further on.
+    /// from the root along the asked heading at the asked speed, facing the
+    /// asked heading (on stopping, the character's own facing); a root
+    /// slower than asked is led up to [`LEAD_M`] further on. Stopped, the
+    /// targets lie on the root itself for [`SETTLE_FRAMES`], then stay
+    /// where it was then, so a root that drifts is asked back.
     pub fn control(&mut self, at: &Frame2, keys: Keys) -> [f32; CONTROL] {
         if keys.stop {
             // Stopping stands facing where the character faces: a turn
@@ -84,6 +94,15 @@ impl Stick {
             self.moving = false;
         } else if keys.go {
             self.moving = true;
+        }
+        match self.moving {
+            true => (self.stopped, self.anchor) = (0, None),
+            false => {
+                self.stopped = self.stopped.saturating_add(1);
+                if self.stopped == SETTLE_FRAMES {
+                    self.anchor = Some(at.pos);
+                }
+            }
         }
         let a = (keys.turn.clamp(-1.0, 1.0) * TURN_DEG_PER_S / FPS).to_radians();
         let (s, c) = a.sin_cos();
@@ -110,7 +129,7 @@ impl Stick {
             false => 0.0,
         };
         self.last = Some(p);
-        let lead = self.behind;
+        let (lead, p) = (self.behind, self.anchor.unwrap_or(p));
         row(at, |k| {
             let ahead = lead + v * k as f64 / FPS;
             ([p[0] + d[0] * ahead, p[1] + d[1] * ahead], d)

@@ -3,7 +3,7 @@
 
 use crate::follow::LEAD_M;
 use crate::path::PathError;
-use crate::stick::LEAD_M as STICK_LEAD_M;
+use crate::stick::{LEAD_M as STICK_LEAD_M, SETTLE_FRAMES};
 use crate::*;
 
 fn near(a: f64, b: f64) -> bool {
@@ -353,12 +353,26 @@ fn the_stick_turns_walks_runs_and_stops_as_the_keys_say() {
     assert_eq!([r[2], r[3]], [0.0, 1.0]);
     s.control(&at, Keys::default());
     assert_eq!(s.speed(), 0.0, "stopped until go");
-    s.control(
-        &at,
+    // Settled (SETTLE_FRAMES stopped), the targets stay where the root
+    // was: one that drifted 0.3 m right is asked back.
+    for _ in 2..SETTLE_FRAMES {
+        s.control(&at, Keys::default());
+    }
+    let drifted = Frame2 {
+        pos: [0.3, 0.0],
+        ..at
+    };
+    let r = s.control(&drifted, Keys::default());
+    for i in 0..3 {
+        assert!((r[4 * i] as f64 + 0.3).abs() < 1e-6 && (r[4 * i + 1] as f64).abs() < 1e-6);
+    }
+    let r = s.control(
+        &drifted,
         Keys {
             go: true,
             ..Keys::default()
         },
     );
     assert_eq!(s.speed(), 0.6);
+    assert!(near(r[0] as f64, 0.0), "going lets the settled place go");
 }
